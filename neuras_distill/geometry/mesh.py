@@ -1,0 +1,56 @@
+"""``MeshData``: the triangle mesh passed between geometry, G-buffer, bake and playback stages."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class MeshData:
+    """A triangle mesh in world units.
+
+    Attributes:
+        vertices: (V, 3) float32 world positions.
+        faces: (F, 3) int32 vertex indices, counter-clockwise seen from outside.
+        uvs: (V, 2) float32 texture coordinates in [0, 1] (u right, v up, OpenGL convention; texel (i, j) of a
+            W x H atlas has its centre at ((i + 0.5) / W, (j + 0.5) / H) with row j = 0 at v = 0), or None
+            before unwrapping. After unwrapping vertices are split along seams, so V grows.
+        stats: what each processing step did (counts, timings), for the report.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray | None = None
+    stats: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32).reshape(-1, 3)
+        self.faces = np.ascontiguousarray(self.faces, dtype=np.int32).reshape(-1, 3)
+        if self.uvs is not None:
+            self.uvs = np.ascontiguousarray(self.uvs, dtype=np.float32).reshape(-1, 2)
+
+    @property
+    def num_faces(self) -> int:
+        return int(self.faces.shape[0])
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    def __repr__(self) -> str:
+        uv = "none" if self.uvs is None else f"{self.uvs.shape} {self.uvs.dtype}"
+        return (f"MeshData(vertices={self.vertices.shape} {self.vertices.dtype}, "
+                f"faces={self.faces.shape} {self.faces.dtype}, uvs={uv})")
+
+    def save_npz(self, path) -> None:
+        arrays = {"vertices": self.vertices, "faces": self.faces}
+        if self.uvs is not None:
+            arrays["uvs"] = self.uvs
+        np.savez_compressed(path, **arrays)
+
+    @classmethod
+    def load_npz(cls, path) -> "MeshData":
+        with np.load(path, allow_pickle=False) as data:
+            return cls(data["vertices"], data["faces"], data["uvs"] if "uvs" in data else None)
