@@ -1,0 +1,2 @@
+"""Presets: TOML files that override ``neuras_distill.config.DistillConfig`` defaults (installed as
+``neuras_distill.configs``)."""

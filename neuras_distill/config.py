@@ -1,0 +1,161 @@
+"""``DistillConfig``: every setting of a run, with its default in exactly one place.
+
+Presets (``configs/*.toml``, installed as ``neuras_distill.configs``) only override these defaults; a user's own
+TOML file does the same. Each field's docstring is what it means and its unit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field, fields, is_dataclass
+from importlib import resources
+from pathlib import Path
+
+from .errors import BadInputError, require
+
+
+@dataclass
+class CameraConfig:
+    num_views: int = 48
+    """Cameras generated for fields that bring none (an orbit framing the scene)."""
+    test_every: int = 8
+    """Every n-th camera is held out for evaluation; the rest train."""
+
+
+@dataclass
+class TeacherConfig:
+    num_steps: int = 256
+    """Ray-marching steps across the field's box diagonal (the teacher and the "before" renderer)."""
+    train_width: int = 320
+    """Width in pixels of the training renders (height follows the cameras' aspect ratio)."""
+
+
+@dataclass
+class GeometryConfig:
+    grid_resolution: int = 192
+    """Marching-cubes lattice points along the longest side of the field's box."""
+    face_budget: int = 40_000
+    """Maximum number of faces after quadric decimation."""
+    cull_unseen: bool = True
+    """Drop faces that no training camera sees."""
+    unwrap_timeout_s: float = 120.0
+    """Time limit for the UV unwrap (xatlas runs in a child process)."""
+
+
+@dataclass
+class TextureConfig:
+    resolution: int = 1024
+    """Side of the square feature atlas in texels."""
+    feature_dim: int = 8
+    """Channels per texel (D)."""
+    num_codes: int = 1024
+    """Vector-quantizer codebook size (K); codes never used are dropped at bake time."""
+    hidden: int = 32
+    """Hidden units of the MLP shader."""
+    num_layers: int = 3
+    """Linear layers of the MLP shader."""
+    view_dependence: str = "auto"
+    """"auto" (measure the field and drop the view direction when colour does not depend on it), "on", "off"."""
+    view_threshold: float = 0.01
+    """Mean colour change (0..1) over view directions below which "auto" drops the view direction."""
+
+
+@dataclass
+class TrainConfig:
+    steps: int = 1500
+    """Optimisation steps."""
+    time_budget_s: float = 0.0
+    """Stop training after this many seconds (0: no limit)."""
+    lr: float = 0.01
+    """Adam learning rate (NeuRas uses 0.01)."""
+    batch_patches: int = 32
+    """Patches per step."""
+    patch: int = 16
+    """Patch side in pixels (the SSIM term needs patches, not single rays)."""
+    ssim_weight: float = 0.2
+    """Weight of the (1 - SSIM) term; the L2 term has weight 1."""
+    seed: int = 0
+    """Random seed for initialisation and batches."""
+
+
+@dataclass
+class EvalConfig:
+    width: int = 512
+    """Width of held-out frames for PSNR/SSIM and FPS (height follows the cameras' aspect ratio)."""
+    fps_frames: int = 30
+    """Timed bundle frames (after warm-up) for the median frame time."""
+    runtime_steps: list[int] = field(default_factory=lambda: [32, 64, 128])
+    """Ray-marching step counts at which the field is also timed for the error-vs-runtime curve."""
+
+
+@dataclass
+class DistillConfig:
+    cameras: CameraConfig = field(default_factory=CameraConfig)
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
+    geometry: GeometryConfig = field(default_factory=GeometryConfig)
+    texture: TextureConfig = field(default_factory=TextureConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def validate(self) -> "DistillConfig":
+        g, t, tr = self.geometry, self.texture, self.train
+        require(g.face_budget >= 4, f"face budget must be at least 4 faces, got {g.face_budget}; "
+                                    "pass e.g. --face-budget 40000")
+        require(g.grid_resolution >= 16, f"grid resolution must be at least 16, got {g.grid_resolution}")
+        require(16 <= t.resolution <= 8192, f"texture resolution must be in 16..8192, got {t.resolution}")
+        require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
+        require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
+        require(t.view_dependence in ("auto", "on", "off"),
+                f"view_dependence must be auto, on or off, got {t.view_dependence!r}")
+        require(tr.steps >= 1, f"training steps must be at least 1, got {tr.steps}")
+        require(self.eval.width >= 16 and self.teacher.train_width >= 16, "image widths must be at least 16")
+        require(self.cameras.num_views >= 2, "need at least 2 views (some train, some held out)")
+        return self
+
+
+def _merge(target, overrides: dict, where: str) -> None:
+    names = {f.name: f for f in fields(target)}
+    for key, value in overrides.items():
+        require(key in names, f"{where}: unknown setting {key!r}; known: {', '.join(sorted(names))}")
+        current = getattr(target, key)
+        if is_dataclass(current):
+            require(isinstance(value, dict), f"{where}: [{key}] must be a table")
+            _merge(current, value, f"{where} [{key}]")
+        else:
+            if isinstance(current, bool):
+                require(isinstance(value, bool), f"{where}: {key} must be true or false")
+            elif isinstance(current, (int, float)) and not isinstance(current, bool):
+                require(isinstance(value, (int, float)) and not isinstance(value, bool),
+                        f"{where}: {key} must be a number")
+                value = type(current)(value) if isinstance(current, float) or float(value).is_integer() else value
+            setattr(target, key, value)
+
+
+def preset_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("neuras_distill.configs").iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def load_config(preset: str | None = None, path: str | Path | None = None,
+                overrides: dict | None = None) -> DistillConfig:
+    """Defaults, then a preset by name, then a user TOML file, then explicit overrides (nested dicts)."""
+    cfg = DistillConfig()
+    if preset:
+        require(preset in preset_names(), f"unknown preset {preset!r}; known: {', '.join(preset_names())}")
+        text = (resources.files("neuras_distill.configs") / f"{preset}.toml").read_text()
+        _merge(cfg, tomllib.loads(text), f"preset {preset}")
+    if path:
+        path = Path(path)
+        require(path.is_file(), f"config file {path} does not exist")
+        try:
+            data = tomllib.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise BadInputError(f"config file {path} is not valid TOML: {exc}") from None
+        _merge(cfg, data, str(path))
+    if overrides:
+        _merge(cfg, overrides, "overrides")
+    return cfg.validate()

@@ -1,0 +1,188 @@
+"""The neural texture model: feature atlas -> (vector quantization) -> bilinear blend -> MLP shader.
+
+Owns: :class:`NeuralTextureModel`. What trains is exactly what plays: the forward pass gathers the four
+bilinear corner texels of each sample, quantizes only those (deduplicated), blends the *quantized* corners
+with the bilinear weights (in the fixed order c00, c10, c01, c11, as the shader does) and runs the MLP. The
+baked shader does texelFetch of the four corner code indices, looks up the codes, blends with the same
+weights and runs the same MLP.
+
+VQ schedule: ``use_vq`` models start with continuous features (``vq_active`` False) and switch to quantized
+features with :meth:`start_vq` (k-means init of the codebook from the current texels); ``fit`` does this
+after a warm-up. Touched texels (corner texels with a non-zero weight in a training forward) are recorded in
+``touched`` while ``record_touched`` is True; :meth:`fill_unseen_texels` copies the nearest touched texel's
+feature into every untouched one (gutter fill), so playback from new views never reads an untrained texel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy import ndimage
+from torch import nn
+
+from neuras_distill.distill.shader import MLPShader
+from neuras_distill.distill.texture import NeuralTexture, bilinear_corners
+from neuras_distill.distill.vq import VectorQuantizer
+from neuras_distill.errors import BadInputError
+
+
+class NeuralTextureModel(nn.Module):
+    """(uv, view direction) -> rgb.
+
+    Args:
+        tex_height, tex_width: atlas size H x W (texels).
+        feature_dim: D channels per texel.
+        num_codes: K codes of the codebook (used only when use_vq).
+        hidden, num_layers: MLP shader size (num_layers Linear layers).
+        use_viewdir: feed the view direction to the MLP.
+        use_vq: quantize features (required to bake atlases with more than 65535 texels).
+        sparse_grad: texture gradients as sparse tensors (train the texture with SparseAdam).
+    """
+
+    def __init__(self, tex_height: int, tex_width: int, feature_dim: int = 8, num_codes: int = 1024,
+                 hidden: int = 32, num_layers: int = 3, use_viewdir: bool = True, use_vq: bool = True,
+                 sparse_grad: bool = True, dead_after: int = 100) -> None:
+        super().__init__()
+        self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
+        self.hidden, self.num_layers = int(hidden), int(num_layers)
+        self.use_viewdir, self.use_vq, self.sparse_grad = bool(use_viewdir), bool(use_vq), bool(sparse_grad)
+        self.texture = NeuralTexture(self.tex_height, self.tex_width, self.feature_dim)
+        self.vq = VectorQuantizer(num_codes, self.feature_dim, dead_after=dead_after) if self.use_vq else None
+        self.shader = MLPShader(self.feature_dim, hidden=hidden, num_layers=num_layers, use_viewdir=use_viewdir)
+        self.register_buffer("vq_active", torch.tensor(False))
+        self.register_buffer("touched", torch.zeros(self.tex_height * self.tex_width, dtype=torch.bool),
+                             persistent=False)
+        self.record_touched = False
+
+    @property
+    def num_codes(self) -> int:
+        return self.vq.num_codes if self.vq is not None else 0
+
+    @property
+    def quantizing(self) -> bool:
+        return self.vq is not None and bool(self.vq_active)
+
+    # ------------------------------------------------------------------ forward
+    def features(self, uv: torch.Tensor) -> tuple[torch.Tensor, dict]:
+        """Blended (quantized) features at uv (B, 2) -> (B, D) float32, aux (vq_loss, indices (B, 4) or None)."""
+        idx, w = bilinear_corners(uv, self.tex_height, self.tex_width)
+        if self.record_touched and self.training:
+            with torch.no_grad():
+                self.touched[idx[w > 0]] = True
+        if self.quantizing:
+            uniq, inv = torch.unique(idx, return_inverse=True)
+            z = self.texture.gather(uniq, sparse_grad=self.sparse_grad)
+            zq, codes, vq_loss = self.vq(z)
+            corners = zq[inv]                     # (B, 4, D)
+            aux = {"vq_loss": vq_loss, "indices": codes[inv]}
+        else:
+            corners = self.texture.gather(idx, sparse_grad=self.sparse_grad)
+            aux = {"vq_loss": torch.zeros((), device=uv.device), "indices": None}
+        w = w.to(corners.dtype)
+        f = (w[:, 0:1] * corners[:, 0] + w[:, 1:2] * corners[:, 1]
+             + w[:, 2:3] * corners[:, 2] + w[:, 3:4] * corners[:, 3])
+        return f, aux
+
+    def forward(self, uv: torch.Tensor, dirs: torch.Tensor | None = None) -> tuple[torch.Tensor, dict]:
+        """uv (B, 2), dirs (B, 3) unit view directions -> rgb (B, 3) in (0, 1), aux {"vq_loss", "indices"}."""
+        f, aux = self.features(uv)
+        return self.shader(f, dirs), aux
+
+    # ------------------------------------------------------------------ training helpers
+    @torch.no_grad()
+    def start_vq(self, sample: torch.Tensor | None = None, max_samples: int = 65536) -> None:
+        """Switch to quantized features: k-means init of the codebook from ``sample`` (M, D), by default the
+        touched texels (all texels when none were recorded)."""
+        if self.vq is None:
+            raise RuntimeError("model was built with use_vq=False")
+        if sample is None:
+            flat = self.texture.flat.detach()
+            sel = torch.nonzero(self.touched).flatten()
+            if sel.numel() == 0:
+                sel = torch.arange(flat.shape[0])
+            if sel.numel() > max_samples:
+                sel = sel[torch.randperm(sel.numel())[:max_samples]]
+            sample = flat[sel]
+        self.vq.init_from(sample, max_samples=max_samples)
+        self.vq_active.fill_(True)
+
+    def reset_touched(self) -> None:
+        self.touched.zero_()
+
+    @torch.no_grad()
+    def fill_unseen_texels(self, touched_mask: torch.Tensor | np.ndarray | None = None) -> int:
+        """Copy into every untouched texel the feature of the nearest touched texel (Euclidean, in texels).
+
+        Args:
+            touched_mask: (H, W) bool; default: the recorded ``touched`` buffer.
+        Returns:
+            number of texels filled (0 when nothing or everything was touched).
+        """
+        if touched_mask is None:
+            touched_mask = self.touched.view(self.tex_height, self.tex_width)
+        mask = np.asarray(touched_mask.cpu() if torch.is_tensor(touched_mask) else touched_mask, dtype=bool)
+        if mask.shape != (self.tex_height, self.tex_width):
+            raise ValueError(f"touched_mask must be {(self.tex_height, self.tex_width)}, got {mask.shape}")
+        if mask.all() or not mask.any():
+            return 0
+        _, (jj, ii) = ndimage.distance_transform_edt(~mask, return_indices=True)
+        src = torch.from_numpy((jj.astype(np.int64) * self.tex_width + ii).reshape(-1))
+        flat = self.texture.flat
+        unseen = torch.from_numpy(~mask.reshape(-1))
+        flat.data[unseen] = flat.data[src[unseen]]
+        return int(unseen.sum())
+
+    # ------------------------------------------------------------------ baking
+    @torch.no_grad()
+    def baked_features(self) -> tuple[np.ndarray, np.ndarray]:
+        """What the shader reads: (index map (H, W) int64, codebook (K', D) float32), unused codes dropped.
+
+        With use_vq the index map is the nearest code of every texel (what the forward pass picks) remapped
+        to the pruned codebook. Without VQ the "codebook" is the texel list itself (identity index map),
+        which only fits the uint16 index texture for atlases of at most 65535 texels.
+        """
+        flat = self.texture.flat.detach().float()
+        if self.quantizing:
+            idx = self.vq.quantize_all(flat)
+            codebook, remap = self.vq.prune(idx)
+            index = remap[idx]
+        else:
+            if self.use_vq:
+                raise BadInputError("the model's vector quantizer was never switched on (start_vq); "
+                                    "train it with fit() before baking")
+            if flat.shape[0] > 65535:
+                raise BadInputError(f"a {self.tex_width}x{self.tex_height} atlas without VQ has {flat.shape[0]} "
+                                    "texels, more than the 65535 a uint16 index texture can address; use use_vq=True")
+            index = torch.arange(flat.shape[0])
+            codebook = flat.clone()
+        return (index.view(self.tex_height, self.tex_width).cpu().numpy().astype(np.int64),
+                codebook.cpu().numpy().astype(np.float32))
+
+    @torch.no_grad()
+    def render_gbuffer(self, uv, coverage, dirs, background, chunk: int = 65536) -> np.ndarray:
+        """Torch reference render of one G-buffer (for parity tests and evaluation).
+
+        Args:
+            uv: (H, W, 2) float32; coverage: (H, W) bool; dirs: (H, W, 3) unit view directions;
+            background: (3,) colour of uncovered pixels. numpy arrays or tensors.
+        Returns:
+            (H, W, 3) float32 numpy image.
+        """
+        was_training = self.training
+        self.eval()
+        try:
+            uv_t = torch.as_tensor(np.asarray(uv, dtype=np.float32))
+            cov = torch.as_tensor(np.asarray(coverage, dtype=bool))
+            d_t = torch.as_tensor(np.asarray(dirs, dtype=np.float32))
+            h, w = cov.shape
+            out = torch.empty(h * w, 3)
+            out[:] = torch.as_tensor(np.asarray(background, dtype=np.float32)).view(1, 3)
+            sel = torch.nonzero(cov.reshape(-1)).flatten()
+            uv_f, d_f = uv_t.reshape(-1, 2), d_t.reshape(-1, 3)
+            for s in range(0, sel.numel(), chunk):
+                ids = sel[s:s + chunk]
+                rgb, _ = self(uv_f[ids], d_f[ids])
+                out[ids] = rgb
+            return out.view(h, w, 3).numpy()
+        finally:
+            self.train(was_training)

@@ -1,0 +1,101 @@
+"""The learnable UV feature map and the bilinear-corner convention shared with the GLSL shader.
+
+Owns: :class:`NeuralTexture` (a (H, W, D) parameter, row j = v index, column i = u index) and
+:func:`bilinear_corners`, the hand-done bilinear lookup of ``docs/architecture.md``::
+
+    x = u*W - 0.5, y = v*H - 0.5, i0 = floor(x), j0 = floor(y), fx = x - i0, fy = y - j0
+    corners (i0,j0), (i0+1,j0), (i0,j0+1), (i0+1,j0+1), clamped to [0, W-1] x [0, H-1]
+    weights (1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy
+
+``bake/glsl.py`` emits exactly the same arithmetic (same order of operations, float32).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+def bilinear_corners(uv: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Corner texels and weights of a bilinear lookup.
+
+    Args:
+        uv: (B, 2) float texture coordinates (u right, v up; [0, 1] covers the texture).
+        height, width: texture size H (rows, v) and W (columns, u).
+
+    Returns:
+        idx: (B, 4) int64 flat texel indices ``j * W + i`` of the corners (i0,j0), (i0+1,j0), (i0,j0+1),
+            (i0+1,j0+1), each clamped to the texture.
+        weights: (B, 4) float32 weights (1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy; they sum to 1.
+    """
+    uv = uv.to(torch.float32)
+    x = uv[:, 0] * float(width) - 0.5
+    y = uv[:, 1] * float(height) - 0.5
+    x0 = torch.floor(x)
+    y0 = torch.floor(y)
+    fx = x - x0
+    fy = y - y0
+    i0 = x0.long()
+    j0 = y0.long()
+    i1 = (i0 + 1).clamp_(0, width - 1)
+    j1 = (j0 + 1).clamp_(0, height - 1)
+    i0 = i0.clamp_(0, width - 1)
+    j0 = j0.clamp_(0, height - 1)
+    idx = torch.stack([j0 * width + i0, j0 * width + i1, j1 * width + i0, j1 * width + i1], dim=1)
+    gx = 1.0 - fx
+    gy = 1.0 - fy
+    weights = torch.stack([gx * gy, fx * gy, gx * fy, fx * fy], dim=1)
+    return idx, weights
+
+
+class NeuralTexture(nn.Module):
+    """A learnable feature atlas.
+
+    Attributes:
+        data: (H, W, D) float32 parameter; ``data[j, i]`` is texel (i, j), centred at uv ((i+0.5)/W, (j+0.5)/H).
+    """
+
+    def __init__(self, height: int, width: int, dim: int, init_std: float = 1e-2,
+                 generator: torch.Generator | None = None) -> None:
+        super().__init__()
+        if height < 1 or width < 1 or dim < 1:
+            raise ValueError(f"NeuralTexture needs positive sizes, got {height}x{width}x{dim}")
+        self.height, self.width, self.dim = int(height), int(width), int(dim)
+        self.data = nn.Parameter(torch.randn(self.height, self.width, self.dim, generator=generator) * init_std)
+
+    @property
+    def flat(self) -> torch.Tensor:
+        """(H*W, D) view of the texels, row-major (index j*W + i)."""
+        return self.data.view(self.height * self.width, self.dim)
+
+    def gather(self, flat_idx: torch.Tensor, sparse_grad: bool = True) -> torch.Tensor:
+        """Texels at flat indices (any shape, values j*W + i) -> (*idx.shape, D).
+
+        With ``sparse_grad`` the gradient of ``data`` is a sparse COO tensor (sparse dims (j, i), dense D)
+        holding only the touched texels, for ``torch.optim.SparseAdam`` (lazy Adam: a step costs O(batch),
+        not O(H*W*D)).
+        """
+        if sparse_grad and torch.is_grad_enabled() and self.data.requires_grad:
+            rows = _SparseGather.apply(self.data, flat_idx.reshape(-1))
+            return rows.view(*flat_idx.shape, self.dim)
+        return self.flat[flat_idx]
+
+    def extra_repr(self) -> str:
+        return f"height={self.height}, width={self.width}, dim={self.dim}"
+
+
+class _SparseGather(torch.autograd.Function):
+    """rows = param.view(-1, D)[idx] with a sparse COO gradient for param (H, W, D)."""
+
+    @staticmethod
+    def forward(ctx, param: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        ctx.save_for_backward(idx)
+        ctx.shape = tuple(param.shape)
+        return param.reshape(-1, param.shape[-1])[idx]
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
+        (idx,) = ctx.saved_tensors
+        h, w, d = ctx.shape
+        ind = torch.stack([torch.div(idx, w, rounding_mode="floor"), idx % w])
+        return torch.sparse_coo_tensor(ind, grad.contiguous(), (h, w, d), check_invariants=False), None

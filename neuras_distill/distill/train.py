@@ -1,0 +1,199 @@
+"""Fitting a :class:`NeuralTextureModel` to teacher images through rasterized G-buffers.
+
+Owns: :func:`fit` and :class:`TrainLog`.
+
+Decisions:
+- Batches are random square patches (``patch`` x ``patch``) centred on random covered pixels of random views
+  (clamped into the image); the loss is ``L2 on covered pixels + ssim_weight * (1 - SSIM) + vq_weight * vq_loss``.
+  For SSIM the uncovered pixels of the prediction are set to the target, and the SSIM map is averaged over
+  covered window centres.
+- Optimisers: the texture (H*W*D, mostly untouched by a step) uses ``SparseAdam`` on sparse gradients, so a
+  step costs O(batch), not O(atlas); MLP and codebook use Adam. Texture and codebook at ``lr``, MLP at
+  ``mlp_lr`` (default ``lr / 2``: the MLP is shared by every pixel and gets dense gradients each step).
+  Both decay exponentially to 0.1x over the run (progress = max(step/steps, elapsed/time_budget_s)).
+- VQ warm-up: the first ``vq_warmup`` fraction (default 0.15) of the run trains continuous features; then the
+  codebook is k-means-initialised from the touched texels and the model is quantized from there on.
+- Touched texels are recorded all along; at the end untouched texels get the nearest touched feature
+  (:meth:`NeuralTextureModel.fill_unseen_texels`).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from neuras_distill.distill.losses import ssim
+from neuras_distill.distill.model import NeuralTextureModel
+from neuras_distill.errors import BadInputError
+
+
+@dataclass
+class TrainLog:
+    """What ``fit`` did.
+
+    Attributes:
+        entries: [{"step", "seconds", "loss", "psnr" (batch, covered pixels), "lr", and when quantizing
+            "perplexity", "used_fraction"}] at every ``log_every`` steps and at the last step.
+        steps: optimisation steps done; seconds: wall time of the loop; steps_per_second.
+        stopped_by: "steps" or "time_budget".
+        vq_start_step: step at which quantization began (None without VQ).
+        vq_stats: final quantizer stats (perplexity, used_fraction, ...), {} without VQ.
+        touched_fraction: fraction of texels a training sample touched; filled_texels: texels gutter-filled.
+    """
+
+    entries: list = field(default_factory=list)
+    steps: int = 0
+    seconds: float = 0.0
+    steps_per_second: float = 0.0
+    stopped_by: str = "steps"
+    vq_start_step: int | None = None
+    vq_stats: dict = field(default_factory=dict)
+    touched_fraction: float = 0.0
+    filled_texels: int = 0
+
+    def as_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+def _as_tensor(x, dtype, name: str, shape_tail: tuple, lead: tuple | None = None) -> torch.Tensor:
+    t = torch.as_tensor(np.asarray(x) if not torch.is_tensor(x) else x)
+    if t.dim() != 3 + len(shape_tail) or tuple(t.shape[3:]) != shape_tail:
+        raise BadInputError(f"fit: {name} must have shape (N, H, W{''.join(', ' + str(s) for s in shape_tail)}), "
+                            f"got {tuple(t.shape)}")
+    if lead is not None and tuple(t.shape[:3]) != lead:
+        raise BadInputError(f"fit: {name} has shape {tuple(t.shape)}, expected leading (N, H, W) = {lead}")
+    return t.to(dtype)
+
+
+def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, lr: float = 0.01,
+        mlp_lr: float | None = None, batch_patches: int = 32, patch: int = 16, ssim_weight: float = 0.2,
+        vq_weight: float = 1.0, vq_warmup: float = 0.15, lr_final_ratio: float = 0.1,
+        time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
+        seed: int = 0) -> TrainLog:
+    """Train ``model`` on teacher images.
+
+    Args:
+        uv: (N, H, W, 2) float32 G-buffer texture coordinates; coverage: (N, H, W) bool;
+        dirs: (N, H, W, 3) float32 unit view directions; targets: (N, H, W, 3) float32 teacher colours.
+        steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
+        lr: texture and codebook learning rate; mlp_lr: MLP learning rate (default lr / 2).
+        batch_patches, patch: patches per step and their side in pixels.
+        ssim_weight, vq_weight: loss weights; vq_warmup: fraction of the run before quantization starts.
+        log_every: steps between log entries (default steps // 50).
+    Returns:
+        :class:`TrainLog`. The model is left in eval mode with untouched texels filled.
+    """
+    if steps < 1:
+        raise BadInputError(f"fit: steps must be >= 1, got {steps}")
+    cov = _as_tensor(coverage, torch.bool, "coverage", ())
+    lead = tuple(cov.shape)
+    uv_t = _as_tensor(uv, torch.float32, "uv", (2,), lead)
+    dirs_t = _as_tensor(dirs, torch.float32, "dirs", (3,), lead)
+    tgt_t = _as_tensor(targets, torch.float32, "targets", (3,), lead)
+    n, h, w = lead
+    cov_f = cov.reshape(-1)
+    covered = torch.nonzero(cov_f).flatten()
+    if covered.numel() == 0:
+        raise BadInputError("fit: no pixel is covered by the mesh in any training view")
+    uv_f, dirs_f, tgt_f = uv_t.reshape(-1, 2), dirs_t.reshape(-1, 3), tgt_t.reshape(-1, 3)
+
+    p = int(max(1, min(patch, h, w)))
+    gen = torch.Generator().manual_seed(seed)
+    dy, dx = torch.meshgrid(torch.arange(p), torch.arange(p), indexing="ij")
+    use_ssim = ssim_weight > 0 and p >= 7
+    log_every = max(1, steps // 50) if log_every is None else max(1, int(log_every))
+    mlp_lr = lr * 0.5 if mlp_lr is None else mlp_lr
+
+    tex_params = [model.texture.data]
+    dense_groups = [{"params": list(model.shader.parameters()), "lr": mlp_lr}]
+    if model.vq is not None:
+        dense_groups.append({"params": [model.vq.codebook], "lr": lr})
+    if model.sparse_grad:
+        opt_tex = torch.optim.SparseAdam(tex_params, lr=lr)
+    else:
+        opt_tex = torch.optim.Adam(tex_params, lr=lr)
+    opt = torch.optim.Adam(dense_groups)
+    base_lrs = [[g["lr"] for g in o.param_groups] for o in (opt_tex, opt)]
+
+    log = TrainLog()
+    model.train()
+    model.record_touched = True
+    bar = tqdm(total=steps, file=sys.stderr, disable=not progress, desc="distill", leave=False)
+    t0 = time.perf_counter()
+    step = 0
+    try:
+        while step < steps:
+            elapsed = time.perf_counter() - t0
+            frac = step / steps
+            if time_budget_s is not None:
+                if elapsed >= time_budget_s:
+                    log.stopped_by = "time_budget"
+                    break
+                frac = max(frac, elapsed / time_budget_s)
+            if model.use_vq and not model.quantizing and frac >= vq_warmup:
+                model.start_vq()
+                log.vq_start_step = step
+            decay = lr_final_ratio ** min(frac, 1.0)
+            for o, bases in zip((opt_tex, opt), base_lrs):
+                for g, b in zip(o.param_groups, bases):
+                    g["lr"] = b * decay
+
+            # ---- batch of patches centred on covered pixels
+            c = covered[torch.randint(0, covered.numel(), (batch_patches,), generator=gen)]
+            view = torch.div(c, h * w, rounding_mode="floor")
+            rem = c - view * (h * w)
+            cy = torch.div(rem, w, rounding_mode="floor")
+            cx = rem - cy * w
+            top = (cy - p // 2).clamp(0, h - p)
+            left = (cx - p // 2).clamp(0, w - p)
+            pix = (view[:, None, None] * (h * w) + (top[:, None, None] + dy) * w + (left[:, None, None] + dx))
+            pix = pix.reshape(-1)
+            m = cov_f[pix]
+            sel = torch.nonzero(m).flatten()
+            tgt = tgt_f[pix]
+            rgb, aux = model(uv_f[pix[sel]], dirs_f[pix[sel]])
+            l2 = torch.mean((rgb - tgt[sel]) ** 2)
+            loss = l2 + vq_weight * aux["vq_loss"]
+            if use_ssim:
+                full = tgt.index_put((sel,), rgb)
+                a = full.view(batch_patches, p, p, 3).permute(0, 3, 1, 2)
+                b = tgt.view(batch_patches, p, p, 3).permute(0, 3, 1, 2)
+                loss = loss + ssim_weight * (1.0 - ssim(a, b, window=7, mask=m.view(batch_patches, p, p)))
+
+            opt_tex.zero_grad(set_to_none=True)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt_tex.step()
+            opt.step()
+            step += 1
+            bar.update(1)
+
+            if step % log_every == 0 or step == steps:
+                l2v = float(l2.detach())
+                entry = {"step": step, "seconds": time.perf_counter() - t0, "loss": float(loss.detach()),
+                         "psnr": -10.0 * math.log10(max(l2v, 1e-10)), "lr": base_lrs[0][0] * decay}
+                if model.quantizing:
+                    entry.update(perplexity=model.vq.perplexity, used_fraction=model.vq.used_fraction)
+                log.entries.append(entry)
+                bar.set_postfix(psnr=f"{entry['psnr']:.2f}", loss=f"{entry['loss']:.4f}")
+    finally:
+        bar.close()
+        log.seconds = time.perf_counter() - t0
+        model.record_touched = False
+    log.steps = step
+    log.steps_per_second = step / max(log.seconds, 1e-9)
+    if model.use_vq and not model.quantizing:      # stopped before the warm-up ended: quantize anyway
+        model.start_vq()
+        log.vq_start_step = step
+    if model.vq is not None:
+        log.vq_stats = model.vq.stats()
+    log.touched_fraction = float(model.touched.float().mean())
+    log.filled_texels = model.fill_unseen_texels()
+    model.eval()
+    return log

@@ -1,0 +1,183 @@
+"""Vector quantization of texel features (VQ-VAE style, straight-through estimator).
+
+Owns: :class:`VectorQuantizer`. Decisions (see ``shared/reference/stability-and-metrics.md`` A5):
+
+- Distances are computed in float32 on vectors centred by the codebook mean, in the expanded form
+  ``|e_c|^2 - 2 x_c . e_c`` (the ``|x_c|^2`` term does not change the argmin). Centring keeps assignments
+  right for codebooks far from the origin (offset 1e3, codes 0.01 apart).
+- Forward value is exactly the code (``e.detach() + (z - z.detach())``: bit-exact ``e`` in the forward pass,
+  identity gradient to ``z``), so what trains is bit-for-bit what the baked shader plays.
+- Loss ``|sg[z] - e|^2 + beta |z - sg[e]|^2`` (means over elements); the codebook is a gradient-trained parameter.
+- Usage is tracked per code as an EMA of assignment counts and as "steps since last used"; codes unused for
+  ``dead_after`` training steps are replaced by random current inputs (dead-code reset).
+- ``init_from(z)``: k-means (10 Lloyd iterations, empty clusters keep their centre) on a sample of ``z``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+
+class VectorQuantizer(nn.Module):
+    """Nearest-code quantizer with STE, codebook/commitment loss, usage stats and dead-code reset.
+
+    Args:
+        num_codes: K codes.
+        dim: D, feature size.
+        beta: commitment weight.
+        dead_after: a code not chosen by any input for this many training forwards is reset (0 disables).
+        usage_decay: EMA decay of the per-code usage counts (for stats).
+    """
+
+    def __init__(self, num_codes: int, dim: int, beta: float = 0.25, dead_after: int = 50,
+                 usage_decay: float = 0.99) -> None:
+        super().__init__()
+        if num_codes < 1 or dim < 1:
+            raise ValueError(f"VectorQuantizer needs num_codes >= 1 and dim >= 1, got {num_codes}, {dim}")
+        self.num_codes, self.dim, self.beta = int(num_codes), int(dim), float(beta)
+        self.dead_after, self.usage_decay = int(dead_after), float(usage_decay)
+        self.codebook = nn.Parameter(torch.randn(self.num_codes, self.dim) * 1e-2)
+        self.register_buffer("ema_usage", torch.zeros(self.num_codes))
+        self.register_buffer("steps_unused", torch.zeros(self.num_codes, dtype=torch.long))
+        self.register_buffer("initialized", torch.tensor(False))
+        self.num_resets = 0
+
+    # ------------------------------------------------------------------ assignment
+    @torch.no_grad()
+    def _nearest(self, z: torch.Tensor, codebook: torch.Tensor | None = None) -> torch.Tensor:
+        """(M, D) -> (M,) int64 index of the nearest code (Euclidean, fp32, centred)."""
+        e = (self.codebook if codebook is None else codebook).detach().float()
+        mu = e.mean(dim=0, keepdim=True)
+        ec = e - mu
+        xc = z.detach().float() - mu
+        dist = (ec * ec).sum(dim=1)[None, :] - 2.0 * (xc @ ec.t())
+        return dist.argmin(dim=1)
+
+    @torch.no_grad()
+    def quantize_all(self, z: torch.Tensor, chunk: int = 65536) -> torch.Tensor:
+        """Nearest-code indices of every row of z (M, D), computed in chunks -> (M,) int64."""
+        out = torch.empty(z.shape[0], dtype=torch.long, device=z.device)
+        for s in range(0, z.shape[0], chunk):
+            out[s:s + chunk] = self._nearest(z[s:s + chunk])
+        return out
+
+    # ------------------------------------------------------------------ forward
+    def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Quantize.
+
+        Args:
+            z: (M, D) features.
+        Returns:
+            z_q_st: (M, D) float32, forward value exactly ``codebook[indices]``, gradient identity to z.
+            indices: (M,) int64.
+            vq_loss: scalar, ``mse(e, sg[z]) + beta * mse(z, sg[e])``.
+        """
+        z = z.float()
+        indices = self._nearest(z)
+        e = self.codebook[indices]
+        vq_loss = torch.mean((e - z.detach()) ** 2) + self.beta * torch.mean((z - e.detach()) ** 2)
+        z_q_st = e.detach() + (z - z.detach())
+        if self.training:
+            self._update_usage(indices, z)
+        return z_q_st, indices, vq_loss
+
+    @torch.no_grad()
+    def _update_usage(self, indices: torch.Tensor, z: torch.Tensor) -> None:
+        counts = torch.bincount(indices, minlength=self.num_codes).float()
+        self.ema_usage.mul_(self.usage_decay).add_(counts, alpha=1.0 - self.usage_decay)
+        used = counts > 0
+        self.steps_unused.add_(1)
+        self.steps_unused[used] = 0
+        if self.dead_after > 0:
+            dead = torch.nonzero(self.steps_unused >= self.dead_after).flatten()
+            if dead.numel() > 0 and z.shape[0] > 0:
+                pick = torch.randint(0, z.shape[0], (dead.numel(),), device=z.device)
+                self.codebook.data[dead] = z.detach()[pick].float()
+                self.steps_unused[dead] = 0
+                self.ema_usage[dead] = self.ema_usage.mean()
+                self.num_resets += int(dead.numel())
+
+    # ------------------------------------------------------------------ init
+    @torch.no_grad()
+    def init_from(self, z: torch.Tensor, iters: int = 10, max_samples: int = 65536,
+                  generator: torch.Generator | None = None) -> None:
+        """k-means initialisation of the codebook from z (M, D) (a random sample of at most max_samples rows).
+
+        Starts from distinct random rows (with replacement when M < K, plus tiny jitter so codes differ),
+        then ``iters`` Lloyd iterations; empty clusters keep their previous centre.
+        """
+        z = z.detach().float()
+        if z.shape[0] == 0:
+            raise ValueError("init_from needs at least one vector")
+        if z.shape[0] > max_samples:
+            z = z[torch.randperm(z.shape[0], generator=generator)[:max_samples]]
+        m, k = z.shape[0], self.num_codes
+        if m >= k:
+            centres = z[torch.randperm(m, generator=generator)[:k]].clone()
+        else:
+            centres = z[torch.randint(0, m, (k,), generator=generator)].clone()
+            scale = z.std(dim=0, keepdim=True).clamp_min(1e-6) * 1e-3
+            centres[m:] += torch.randn(k - m, z.shape[1], generator=generator) * scale
+        for _ in range(iters):
+            assign = self._nearest(z, centres)
+            sums = torch.zeros_like(centres).index_add_(0, assign, z)
+            counts = torch.bincount(assign, minlength=k).float()
+            nonempty = counts > 0
+            centres[nonempty] = sums[nonempty] / counts[nonempty, None]
+        self.codebook.data.copy_(centres)
+        self.ema_usage.fill_(0.0)
+        self.steps_unused.zero_()
+        self.initialized.fill_(True)
+
+    # ------------------------------------------------------------------ stats and baking
+    @staticmethod
+    def perplexity_of(indices: torch.Tensor, num_codes: int) -> float:
+        """exp(entropy) of the code histogram of ``indices`` (1 = one code used, K = uniform use)."""
+        counts = torch.bincount(indices.flatten(), minlength=num_codes).double()
+        p = counts / counts.sum().clamp_min(1.0)
+        p = p[p > 0]
+        return float(torch.exp(-(p * p.log()).sum()))
+
+    @property
+    def perplexity(self) -> float:
+        """exp(entropy) of the EMA usage distribution."""
+        total = float(self.ema_usage.sum())
+        if total <= 0:
+            return 0.0
+        p = (self.ema_usage.double() / total)
+        p = p[p > 0]
+        return float(math.exp(-float((p * p.log()).sum())))
+
+    @property
+    def used_fraction(self) -> float:
+        """Fraction of codes chosen at least once within the last ``dead_after`` (or 100) training forwards."""
+        window = self.dead_after if self.dead_after > 0 else 100
+        return float((self.steps_unused < window).float().mean())
+
+    def stats(self) -> dict:
+        return {"perplexity": self.perplexity, "used_fraction": self.used_fraction,
+                "num_codes": self.num_codes, "dead_code_resets": self.num_resets}
+
+    @torch.no_grad()
+    def prune(self, used_indices: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Drop codes that ``used_indices`` never references.
+
+        Args:
+            used_indices: int64 tensor of any shape with values in [0, K).
+        Returns:
+            codebook: (K', D) float32 copy of the used codes, in increasing old-index order.
+            remap: (K,) int64, new index of each old code, -1 for dropped codes
+                (``remap[used_indices]`` indexes the pruned codebook).
+        """
+        used = torch.zeros(self.num_codes, dtype=torch.bool, device=used_indices.device)
+        used[used_indices.flatten()] = True
+        keep = torch.nonzero(used).flatten()
+        remap = torch.full((self.num_codes,), -1, dtype=torch.long, device=used_indices.device)
+        remap[keep] = torch.arange(keep.numel(), device=used_indices.device)
+        return self.codebook.detach()[keep].float().clone(), remap
+
+    def extra_repr(self) -> str:
+        return f"num_codes={self.num_codes}, dim={self.dim}, beta={self.beta}, dead_after={self.dead_after}"

@@ -1,0 +1,201 @@
+"""Analytic SDF fields with exact surfaces (sphere, torus, rounded box), and SDF -> density conversion.
+
+This module owns:
+
+* :class:`AnalyticSDFField` and its shapes :class:`SphereSDF`, :class:`TorusSDF`, :class:`BoxSDF`: fields of
+  kind ``"sdf"`` whose ``exact_sdf(x)`` is the true Euclidean signed distance (negative inside), with a
+  simple position-dependent colour and a mild view-dependent term. Used by tests and as synthetic scenes.
+* :func:`laplace_density`: VolSDF's Laplace density σ = (1/β)·Ψ_β(−sdf) in the stable ``expm1`` form.
+* :class:`SDFToDensityField`: wraps any SDF field into a ``"density"`` field with the same radiance, aabb,
+  background and cameras.
+
+All points are world points (N, 3); directions are unit directions of travel (N, 3).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+
+from ..errors import require
+
+DEFAULT_BETA = 0.003
+
+
+def laplace_density(sdf: torch.Tensor, beta: float) -> torch.Tensor:
+    """VolSDF density (N,) from signed distances (N,) (negative inside): σ = (1/β)·Laplace-CDF_β(−sdf).
+
+    Written as ``(0.5 + 0.5·sign(sdf)·expm1(−|sdf|/β)) / β``: σ -> 1/β deep inside, 1/(2β) on the surface,
+    (1/2β)·exp(−sdf/β) outside; never overflows or produces NaN for finite input.
+    """
+    sdf = sdf.float()
+    return (0.5 + 0.5 * torch.sign(sdf) * torch.expm1(-sdf.abs() / beta)) / beta
+
+
+class SDFToDensityField:
+    """Density view (kind ``"density"``) of an SDF field: σ = :func:`laplace_density` (field.geometry(x), β).
+
+    Radiance, aabb, background, background_color, cameras, unbounded and any other member (e.g.
+    ``default_cameras``, ``exact_sdf``) are forwarded to the wrapped field; ``inv_s`` is not (it is an SDF
+    notion). ``beta`` is in world units (the width of the surface's density ramp).
+    """
+
+    kind = "density"
+
+    def __init__(self, sdf_field: Any, beta: float = DEFAULT_BETA):
+        require(getattr(sdf_field, "kind", None) == "sdf",
+                f"SDFToDensityField needs a field of kind 'sdf', got {getattr(sdf_field, 'kind', None)!r}")
+        require(beta > 0 and math.isfinite(beta), f"beta must be positive and finite, got {beta}")
+        self.sdf_field = sdf_field
+        self.beta = float(beta)
+
+    @property
+    def aabb(self) -> torch.Tensor:
+        return self.sdf_field.aabb
+
+    def geometry(self, x: torch.Tensor) -> torch.Tensor:
+        """x (N, 3) -> σ (N,) per world unit."""
+        return laplace_density(self.sdf_field.geometry(x), self.beta)
+
+    def radiance(self, x: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        return self.sdf_field.radiance(x, d)
+
+    def __getattr__(self, name: str):
+        # only called for members not found normally; forward optional members, never inv_s
+        if name in ("sdf_field", "inv_s") or name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.sdf_field, name)
+
+    def __repr__(self) -> str:
+        return f"SDFToDensityField({self.sdf_field!r}, beta={self.beta})"
+
+
+class AnalyticSDFField:
+    """Base of the analytic SDF fields: kind ``"sdf"``, exact signed distance, simple colour.
+
+    Subclasses implement :meth:`exact_sdf` (N, 3) -> (N,) and set ``aabb``. Radiance is a smooth colour
+    from the position (in [0.15, 0.9]) times a soft diffuse term, plus a small view-dependent lobe when
+    ``gloss > 0``; always in [0, 1].
+    """
+
+    kind = "sdf"
+
+    def __init__(self, aabb: torch.Tensor, *, inv_s: float = 1000.0, gloss: float = 0.0,
+                 background_color=(1.0, 1.0, 1.0)):
+        self.aabb = torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3)
+        self.inv_s = float(inv_s)
+        self.gloss = float(gloss)
+        self.background_color = torch.as_tensor(background_color, dtype=torch.float32).reshape(3)
+
+    # -- geometry
+    def exact_sdf(self, x: torch.Tensor) -> torch.Tensor:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def geometry(self, x: torch.Tensor) -> torch.Tensor:
+        """x (N, 3) -> signed distance (N,), negative inside."""
+        return self.exact_sdf(x.float())
+
+    def normal(self, x: torch.Tensor, eps: float = 1e-4) -> torch.Tensor:
+        """(N, 3) unit outward normals from central differences of :meth:`exact_sdf`."""
+        x = x.float()
+        offs = torch.eye(3, dtype=x.dtype) * eps
+        pts = torch.cat([x[:, None, :] + offs, x[:, None, :] - offs], dim=1).reshape(-1, 3)
+        f = self.exact_sdf(pts).reshape(-1, 2, 3)
+        g = f[:, 0] - f[:, 1]
+        return torch.nn.functional.normalize(g, dim=-1, eps=1e-12)
+
+    def radiance(self, x: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        """x (N, 3), d (N, 3) -> (N, 3) colour in [0, 1]."""
+        x, d = x.float(), d.float()
+        lo, hi = self.aabb[0], self.aabb[1]
+        u = ((x - lo) / (hi - lo)).clamp(0.0, 1.0)
+        albedo = 0.15 + 0.75 * (0.5 + 0.5 * torch.sin(2.0 * math.pi * u + torch.tensor([0.0, 2.1, 4.2])))
+        n = self.normal(x)
+        light = torch.nn.functional.normalize(torch.tensor([0.4, -0.3, 0.85]), dim=0)
+        ndl = (n * light).sum(-1, keepdim=True)
+        shade = 0.45 + 0.55 * ((ndl + 0.3) / 1.3).clamp(min=0.0)
+        rgb = albedo * shade
+        if self.gloss > 0:
+            h = torch.nn.functional.normalize(light - d, dim=-1)
+            rgb = rgb + self.gloss * (n * h).sum(-1, keepdim=True).clamp(min=0.0) ** 12
+        return rgb.clamp(0.0, 1.0)
+
+    def density(self, beta: float = DEFAULT_BETA) -> SDFToDensityField:
+        """The VolSDF density version of this field (kind ``"density"``)."""
+        return SDFToDensityField(self, beta)
+
+    def default_cameras(self, n: int, width: int = 512, height: int = 512):
+        """An orbit (z up, elevations 15..50 degrees) framing the aabb."""
+        from ..render.cameras import Cameras
+
+        center = 0.5 * (self.aabb[0] + self.aabb[1])
+        radius = 0.5 * float((self.aabb[1] - self.aabb[0]).norm())
+        fov = 40.0
+        dist = 1.1 * radius / math.sin(math.radians(fov) / 2)
+        return Cameras.orbit(center.tolist(), dist, n, width=width, height=height, fov_deg=fov,
+                             elevation_deg=(15.0, 50.0))
+
+
+def _box_around(center: torch.Tensor, half: torch.Tensor, margin: float) -> torch.Tensor:
+    return torch.stack([center - half - margin, center + half + margin])
+
+
+class SphereSDF(AnalyticSDFField):
+    """Sphere of ``radius`` at ``center``: sdf = |x − c| − r."""
+
+    def __init__(self, center=(0.0, 0.0, 0.0), radius: float = 0.5, *, margin: float = 0.05, **kw):
+        require(radius > 0, f"sphere radius must be positive, got {radius}")
+        self.center = torch.as_tensor(center, dtype=torch.float32).reshape(3)
+        self.radius = float(radius)
+        super().__init__(_box_around(self.center, torch.full((3,), self.radius), margin), **kw)
+
+    def exact_sdf(self, x: torch.Tensor) -> torch.Tensor:
+        return (x - self.center).norm(dim=-1) - self.radius
+
+    def __repr__(self) -> str:
+        return f"SphereSDF(center={self.center.tolist()}, radius={self.radius})"
+
+
+class TorusSDF(AnalyticSDFField):
+    """Torus around the z axis through ``center``: major radius R (ring), minor radius r (tube)."""
+
+    def __init__(self, center=(0.0, 0.0, 0.0), major: float = 0.4, minor: float = 0.15, *,
+                 margin: float = 0.05, **kw):
+        require(0 < minor < major, f"torus needs 0 < minor < major, got minor={minor}, major={major}")
+        self.center = torch.as_tensor(center, dtype=torch.float32).reshape(3)
+        self.major, self.minor = float(major), float(minor)
+        half = torch.tensor([major + minor, major + minor, minor])
+        super().__init__(_box_around(self.center, half, margin), **kw)
+
+    def exact_sdf(self, x: torch.Tensor) -> torch.Tensor:
+        p = x - self.center
+        q = torch.stack([p[:, :2].norm(dim=-1) - self.major, p[:, 2]], dim=-1)
+        return q.norm(dim=-1) - self.minor
+
+    def __repr__(self) -> str:
+        return f"TorusSDF(center={self.center.tolist()}, major={self.major}, minor={self.minor})"
+
+
+class BoxSDF(AnalyticSDFField):
+    """Axis-aligned box of half extents ``half_size`` at ``center``, edges rounded by ``rounding``
+    (the rounded box's outer extent is ``half_size``)."""
+
+    def __init__(self, center=(0.0, 0.0, 0.0), half_size=(0.4, 0.3, 0.2), rounding: float = 0.0, *,
+                 margin: float = 0.05, **kw):
+        self.center = torch.as_tensor(center, dtype=torch.float32).reshape(3)
+        self.half_size = torch.as_tensor(half_size, dtype=torch.float32).reshape(3)
+        self.rounding = float(rounding)
+        require(bool((self.half_size > self.rounding).all()) and self.rounding >= 0,
+                f"box half sizes {self.half_size.tolist()} must exceed rounding {rounding} >= 0")
+        super().__init__(_box_around(self.center, self.half_size, margin), **kw)
+
+    def exact_sdf(self, x: torch.Tensor) -> torch.Tensor:
+        q = (x - self.center).abs() - (self.half_size - self.rounding)
+        outside = q.clamp(min=0.0).norm(dim=-1)
+        inside = q.max(dim=-1).values.clamp(max=0.0)
+        return outside + inside - self.rounding
+
+    def __repr__(self) -> str:
+        return f"BoxSDF(center={self.center.tolist()}, half_size={self.half_size.tolist()}, r={self.rounding})"

@@ -1,0 +1,195 @@
+"""UV unwrap with xatlas in a child process with a time limit (the only xatlas importer).
+
+xatlas segfaults or runs for minutes on some meshes (very regular meshes, > ~100k faces; jpcy/xatlas#151), and a
+segfault cannot be caught in-process. So :func:`unwrap` runs it in a ``spawn`` child process (no fork of a
+process holding torch/OpenMP threads) and waits with a time limit. On a crash or timeout it retries once with a
+tiny deterministic vertex jitter (5% of the mean edge length, seed 0; only the positions xatlas sees are
+jittered, the returned geometry is exact); when that also fails it raises :class:`BadInputError` asking for a
+smaller face budget. Meshes above ``max_faces`` are refused before starting.
+
+UV convention (checked against xatlas's own chart image, xatlas 0.0.11): xatlas's uv (u, v), divided by the
+atlas width/height, addresses texel column ``u * W`` and row ``v * H`` of its image whose row 0 is v = 0. That is
+exactly :class:`MeshData`'s convention (row 0 of the texture array is v = 0, OpenGL upload order), so no flip
+is applied.
+
+Atlas size: with ``PackOptions.resolution = R`` and automatic texels-per-unit, xatlas only approximates R
+(measured: a 256 request gave 324 x 304). The distiller uses a square R x R texture, so the uvs are scaled
+uniformly by ``R / max(atlas_width, atlas_height)`` into [0, 1]^2 (aspect preserved, texel grid aligned at the
+origin). xatlas's padding (requested ``padding`` texels, plus the bilinear margin) shrinks by that factor; when
+the effective padding would fall below ``min_padding`` texels, the atlas is generated again with a larger
+padding. ``stats['uv_padding_texels']`` records the effective padding at R.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import time
+from multiprocessing.connection import wait as mp_wait
+
+import numpy as np
+
+from ..errors import BadInputError
+from .mesh import MeshData
+
+#: Test hook: when this environment variable is "abort" the child calls os.abort() (simulated segfault),
+#: "hang" makes it sleep past the time limit. Read in the child only.
+CRASH_HOOK_ENV = "NEURAS_DISTILL_TEST_XATLAS_FAULT"
+
+
+# ---------------------------------------------------------------------------------------------- child side
+def _xatlas_worker(conn, vertices: np.ndarray, faces: np.ndarray, options: dict) -> None:
+    """Runs in the child: unwrap, send back a dict (or nothing when it crashes)."""
+    try:
+        import resource
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # a crash must not write a core file
+    except Exception:  # pragma: no cover - non-POSIX
+        pass
+    fault = os.environ.get(CRASH_HOOK_ENV, "")
+    if fault == "abort":
+        os.abort()
+    if fault == "hang":
+        time.sleep(3600)
+    import xatlas
+
+    def generate(resolution: int, padding: int):
+        atlas = xatlas.Atlas()
+        atlas.add_mesh(vertices, faces)
+        chart = xatlas.ChartOptions()
+        chart.max_iterations = int(options["max_iterations"])
+        pack = xatlas.PackOptions()
+        pack.resolution = int(resolution)
+        pack.padding = int(padding)
+        pack.bilinear = True
+        pack.blockAlign = True
+        atlas.generate(chart, pack)
+        return atlas
+
+    padding = int(options["padding"])
+    resolution = int(options["resolution"])
+    atlas = generate(resolution, padding)
+    if atlas.atlas_count != 1:  # did not fit one page: let xatlas size one atlas freely, scaled later
+        atlas = generate(0, padding)
+    scale = resolution / max(atlas.width, atlas.height)
+    if padding * scale < options["min_padding"]:
+        padding = int(math.ceil(options["min_padding"] / scale)) + 1
+        atlas = generate(resolution, padding)
+        if atlas.atlas_count != 1:
+            atlas = generate(0, padding)
+    vmapping, indices, uvs = atlas[0]
+    conn.send({"vmapping": np.asarray(vmapping, dtype=np.int64), "indices": np.asarray(indices, dtype=np.int64),
+               "uvs": np.asarray(uvs, dtype=np.float32), "chart_count": int(atlas.chart_count),
+               "width": int(atlas.width), "height": int(atlas.height), "atlas_count": int(atlas.atlas_count),
+               "utilization": float(np.mean(atlas.utilization)), "padding": padding})
+    conn.close()
+
+
+# ---------------------------------------------------------------------------------------------- parent side
+def _run_in_child(vertices: np.ndarray, faces: np.ndarray, options: dict, timeout_s: float) -> tuple[str, dict | None]:
+    """("ok", result) | ("crashed", None) | ("timeout", None)."""
+    ctx = mp.get_context("spawn")
+    recv_conn, send_conn = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_xatlas_worker, args=(send_conn, vertices, faces, options), daemon=True,
+                       name="neuras-xatlas")
+    proc.start()
+    send_conn.close()
+    try:
+        ready = mp_wait([recv_conn, proc.sentinel], timeout=timeout_s)
+        if recv_conn in ready:
+            try:
+                return "ok", recv_conn.recv()
+            except (EOFError, OSError):
+                return "crashed", None
+        if proc.sentinel in ready:
+            return "crashed", None
+        return "timeout", None
+    finally:
+        recv_conn.close()
+        proc.join(timeout=2.0)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(timeout=2.0)
+        if proc.is_alive():  # pragma: no cover
+            proc.kill()
+            proc.join()
+
+
+def _jitter(vertices: np.ndarray, faces: np.ndarray, amount: float = 0.05) -> np.ndarray:
+    e = vertices[faces[:, [1, 2, 0]]] - vertices[faces]
+    mean_edge = float(np.linalg.norm(e, axis=-1).mean()) if faces.shape[0] else 0.0
+    rng = np.random.default_rng(0)
+    return (vertices + amount * mean_edge * rng.uniform(-1.0, 1.0, vertices.shape)).astype(np.float32)
+
+
+def uv_face_areas(uvs: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) signed uv area per face (positive = counter-clockwise in uv space)."""
+    a, b, c = uvs[faces[:, 0]], uvs[faces[:, 1]], uvs[faces[:, 2]]
+    ab, ac = b - a, c - a
+    return 0.5 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+
+
+def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000, resolution: int | None = None,
+           padding: int = 3, min_padding: float = 2.0, max_iterations: int = 1) -> MeshData:
+    """UV-unwrap ``mesh`` into one square atlas.
+
+    Args:
+        mesh: vertices (V, 3), faces (F, 3) (cleaned and decimated).
+        timeout_s: time limit for each xatlas attempt (there are at most two).
+        max_faces: larger meshes are refused up front.
+        resolution: texture side R the distiller uses (default 1024); uvs are laid out for an R x R atlas.
+        padding: texels xatlas leaves between charts (plus its bilinear margin).
+        min_padding: smallest acceptable effective padding at R texels (regenerate with more padding below).
+        max_iterations: xatlas ChartOptions.max_iterations (small = fast).
+
+    Returns:
+        MeshData with vertices (V', 3) split along seams (V' >= V), faces (F, 3) in the same order, uvs (V', 2)
+        float32 in [0, 1], and stats ``uv_charts``, ``uv_atlas_width``, ``uv_atlas_height``,
+        ``uv_utilization``, ``uv_resolution``, ``uv_padding_texels``, ``uv_attempts``, ``uv_seconds``.
+
+    Raises:
+        BadInputError: empty mesh, too many faces, or xatlas crashed/timed out twice.
+    """
+    resolution = 1024 if resolution is None else int(resolution)
+    if resolution < 16:
+        raise BadInputError(f"texture resolution must be at least 16 texels, got {resolution}")
+    n_faces = mesh.num_faces
+    if n_faces == 0 or mesh.num_vertices == 0:
+        raise BadInputError("cannot UV-unwrap an empty mesh (no faces); the surface extraction produced nothing — "
+                            "check the field's aabb and level")
+    if n_faces > max_faces:
+        raise BadInputError(f"the mesh has {n_faces} faces, more than the UV unwrap handles ({max_faces}); "
+                            f"lower --face-budget (e.g. to {min(max_faces, 100_000)})")
+    if not np.isfinite(mesh.vertices).all():
+        raise BadInputError("the mesh has NaN or Inf vertices; run clean_mesh first")
+    t0 = time.perf_counter()
+    vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
+    faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
+    options = {"resolution": resolution, "padding": int(padding), "min_padding": float(min_padding),
+               "max_iterations": int(max_iterations)}
+    attempts = []
+    result = None
+    for attempt, positions in enumerate((vertices, None)):
+        if positions is None:
+            positions = _jitter(vertices, mesh.faces)
+        status, result = _run_in_child(positions, faces, options, timeout_s)
+        attempts.append(status)
+        if status == "ok":
+            break
+    if result is None:
+        what = "crashed" if attempts[-1] == "crashed" else f"timed out (limit {timeout_s:g} s)"
+        raise BadInputError(f"UV unwrap {what} on {n_faces} faces (twice, the second time with jittered vertices); "
+                            f"lower --face-budget (e.g. to {max(1000, n_faces // 2)}) or raise the unwrap time limit")
+    vmapping, indices, uv = result["vmapping"], result["indices"], result["uvs"].astype(np.float64)
+    scale = 1.0 / max(result["width"], result["height"])
+    uv = uv * np.array([result["width"], result["height"]], dtype=np.float64) * scale
+    uv = np.clip(uv, 0.0, 1.0).astype(np.float32)
+    stats = dict(mesh.stats)
+    stats.update(uv_charts=result["chart_count"], uv_atlas_width=result["width"], uv_atlas_height=result["height"],
+                 uv_utilization=result["utilization"] * result["width"] * result["height"] * scale * scale,
+                 uv_resolution=resolution, uv_padding_texels=result["padding"] * resolution * scale,
+                 uv_attempts=attempts, uv_seconds=time.perf_counter() - t0)
+    return MeshData(mesh.vertices[vmapping], indices, uv, stats)
+
+
+__all__ = ["unwrap", "uv_face_areas", "CRASH_HOOK_ENV"]

@@ -1,0 +1,305 @@
+"""``distill(field, cameras, config, out)``: the whole pipeline, stage by stage, into one run folder.
+
+Stages (each timed, each with a small manifest under ``stages/<name>/``): cameras -> teacher -> geometry ->
+gbuffer -> distill -> bake -> evaluate. The run folder is written in a temporary sibling and moved into
+place at the end, so a failed run leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..config import DistillConfig, load_config
+from ..errors import BadInputError, require
+from ..render.cameras import Cameras
+from . import decisions, evaluate, report as report_mod
+from .rundir import RunFolder
+
+
+@dataclass
+class DistillResult:
+    report: dict
+    out: Path | None
+    bundle: object
+
+    def __repr__(self) -> str:
+        r = self.report
+        return (f"DistillResult(psnr={r['psnr']:.2f} dB, ssim={r['ssim']:.4f}, speedup={r['speedup']:.0f}x, "
+                f"out={self.out})")
+
+
+class _Stages:
+    """Times stages and writes their manifests."""
+
+    def __init__(self, root: Path | None, log):
+        self.root, self.log, self.seconds, self._t0 = root, log, {}, None
+        self.index = 0
+
+    def start(self, name: str, what: str) -> None:
+        self.index += 1
+        self.log(f"[{self.index}/7] {name}: {what}")
+        self._name, self._t0 = name, time.perf_counter()
+
+    def done(self, **info) -> float:
+        seconds = time.perf_counter() - self._t0
+        self.seconds[self._name] = round(seconds, 3)
+        if self.root is not None:
+            folder = self.root / "stages" / self._name
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "manifest.json").write_text(json.dumps(
+                {"stage": self._name, "version": __version__, "seconds": seconds, **info}, indent=2, default=str))
+        return seconds
+
+
+def _device_info(gl_info: dict | None) -> dict:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    field_side = f"CPU: {cpu} ({torch.get_num_threads()} threads), torch {torch.__version__}"
+    if torch.cuda.is_available():
+        field_side = f"GPU: {torch.cuda.get_device_name(0)}"
+    gl = gl_info or {}
+    return {"field": field_side, "bundle": f"OpenGL: {gl.get('renderer', '?')} ({gl.get('version', '?')})",
+            "python": sys.version.split()[0], "platform": platform.platform()}
+
+
+def _resolve_view_dependence(field, mesh, cfg: DistillConfig, left_out: list) -> tuple[bool, float | None]:
+    mode = cfg.texture.view_dependence
+    if mode == "on":
+        return True, None
+    if mode == "off":
+        left_out.append({"component": "view direction", "reason": "turned off by configuration"})
+        return False, None
+    spread = decisions.measure_view_dependence(field, mesh, seed=cfg.train.seed)
+    if spread < cfg.texture.view_threshold:
+        left_out.append({"component": "view direction",
+                         "reason": f"the field's colour barely changes with view direction (mean spread "
+                                   f"{spread:.4f} < {cfg.texture.view_threshold}); the shader has no view input"})
+        return False, spread
+    return True, spread
+
+
+def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict | None = None,
+            out: str | Path | None = None, *, log=None, progress: bool = True) -> DistillResult:
+    """Distill ``field`` into a bundle that OpenGL plays, and measure it against the field.
+
+    Args:
+        field: any object following the Field contract (kind, aabb, geometry, radiance).
+        cameras: the cameras to train and evaluate on (OpenGL convention); every ``test_every``-th is held
+            out. When None: ``field.cameras`` if the field brings them, else the field's ``default_cameras``.
+        config: a DistillConfig, a dict of overrides, or None for the defaults.
+        out: run folder (bundle, report.json, report.md, images). None: nothing is written.
+    Returns:
+        DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``.
+    Raises:
+        BadInputError: for anything the user can fix (message says what and how).
+    """
+    from ..fields.base import check_field
+
+    log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    if config is None:
+        cfg = DistillConfig().validate()
+    elif isinstance(config, dict):
+        cfg = load_config(overrides=config)
+    else:
+        cfg = config.validate()
+    check_field(field)
+    cameras = _pick_cameras(field, cameras, cfg)
+    torch.manual_seed(cfg.train.seed)
+    np.random.seed(cfg.train.seed)
+
+    if out is None:
+        return _run(field, cameras, cfg, None, log, progress)
+    folder = RunFolder(out)
+    with folder as tmp:
+        result = _run(field, cameras, cfg, tmp, log, progress)
+    result.out = folder.out
+    log(f"run folder: {folder.out}")
+    return result
+
+
+def _pick_cameras(field, cameras, cfg: DistillConfig) -> Cameras:
+    if cameras is None:
+        cameras = getattr(field, "cameras", None)
+    if cameras is None:
+        make = getattr(field, "default_cameras", None)
+        require(callable(make), "no cameras given and the field brings none; pass cameras "
+                                "(e.g. nd.Cameras.from_transforms('transforms.json'))")
+        cameras = make(cfg.cameras.num_views, 512, 512)
+    require(isinstance(cameras, Cameras), f"cameras must be an nd.Cameras, got {type(cameras).__name__}")
+    require(len(cameras) >= 2, f"need at least 2 cameras (some to train on, some held out), got {len(cameras)}")
+    return cameras
+
+
+def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool) -> DistillResult:
+    from ..bake.bundle import bake
+    from ..distill.model import NeuralTextureModel
+    from ..distill.train import fit
+    from ..geometry.extract import extract_mesh
+    from ..playback.context import gl_info
+    from ..playback.rasterize import rasterize_gbuffer
+    from ..playback.renderer import BundleRenderer
+    from ..render.volume import VolumeRenderer
+
+    t_start = time.perf_counter()
+    stages = _Stages(root, log)
+    left_out: list[dict] = []
+
+    # 1. cameras ------------------------------------------------------------------------------------
+    stages.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
+    train_full, test_full = cameras.split(cfg.cameras.test_every)
+    train = train_full.resized(cfg.teacher.train_width)
+    test = test_full.resized(cfg.eval.width)
+    if root is not None:
+        (root / "cameras.json").write_text(json.dumps({"train": train.to_json(), "test": test.to_json()}))
+    stages.done(train=len(train), test=len(test), train_size=[train.width, train.height],
+                test_size=[test.width, test.height])
+
+    # 2. teacher ------------------------------------------------------------------------------------
+    stages.start("teacher", f"volume-rendering {len(train)} training views at {train.width}x{train.height}, "
+                            f"{cfg.teacher.num_steps} steps/ray")
+    teacher = VolumeRenderer(field, num_steps=cfg.teacher.num_steps)
+    train_images, _ = evaluate.render_field_timed(teacher, train, _progress_printer(log, "teacher", progress))
+    targets = np.stack(train_images).astype(np.float32)
+    require(bool(np.isfinite(targets).all()), "the field renders NaN or Inf colours; check its parameters")
+    stages.done(views=len(train))
+
+    # 3. geometry -----------------------------------------------------------------------------------
+    stages.start("geometry", f"marching cubes at {cfg.geometry.grid_resolution}, decimation to "
+                             f"{cfg.geometry.face_budget} faces, culling, UV unwrap")
+    mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
+                        face_budget=cfg.geometry.face_budget, texture_resolution=cfg.texture.resolution,
+                        unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen)
+    culled = int(mesh.stats.get("culled_faces", 0))
+    if culled:
+        left_out.append({"component": "unseen faces",
+                         "reason": f"{culled} faces seen by no training camera were culled before unwrapping "
+                                   "(they get no texels)"})
+    use_viewdir, view_spread = _resolve_view_dependence(field, mesh, cfg, left_out)
+    constant_bg, bg_reason = decisions.background_is_constant(field)
+    if constant_bg:
+        left_out.append({"component": "skyboxes", "reason": bg_reason})
+    else:
+        raise BadInputError(f"this scene needs neural skyboxes ({bg_reason}), which this version does not "
+                            "build yet; give a field with a constant background")
+    stages.done(**{k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))})
+
+    # 4. gbuffer ------------------------------------------------------------------------------------
+    stages.start("gbuffer", f"rasterizing {mesh.num_faces} faces for {len(train)} views (OpenGL)")
+    gbuffer = rasterize_gbuffer(mesh, train)
+    dirs = np.stack([train.rays(i)[1].numpy() for i in range(len(train))]).astype(np.float32)
+    stages.done(coverage=float(gbuffer.coverage.mean()))
+
+    # 5. distill ------------------------------------------------------------------------------------
+    t = cfg.texture
+    stages.start("distill", f"{t.resolution}^2 x {t.feature_dim} feature atlas, {t.num_codes} codes, "
+                            f"MLP {t.num_layers}x{t.hidden}{'' if use_viewdir else ' (no view input)'}, "
+                            f"{cfg.train.steps} steps")
+    model = NeuralTextureModel(t.resolution, t.resolution, feature_dim=t.feature_dim, num_codes=t.num_codes,
+                               hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir)
+    train_log = fit(model, gbuffer.uv, gbuffer.coverage, dirs, targets, steps=cfg.train.steps,
+                    lr=cfg.train.lr, batch_patches=cfg.train.batch_patches, patch=cfg.train.patch,
+                    ssim_weight=cfg.train.ssim_weight, time_budget_s=cfg.train.time_budget_s or None,
+                    progress=progress, seed=cfg.train.seed)
+    train_history = list(getattr(train_log, "history", train_log))
+    stages.done(final=train_history[-1] if train_history else None)
+
+    # 6. bake ---------------------------------------------------------------------------------------
+    stages.start("bake", "quantized features -> textures, MLP -> GLSL")
+    bg = decisions.background_color(field)
+    bundle = bake(model, mesh, background_color=bg.tolist(),
+                  extra_manifest={"left_out": left_out, "view_dependence": use_viewdir})
+    codes_total = t.num_codes
+    codes_kept = int(bundle.manifest.get("num_codes", codes_total))
+    if codes_kept < codes_total:
+        left_out.append({"component": "unused codes",
+                         "reason": f"{codes_total - codes_kept} of {codes_total} codebook entries are used by no "
+                                   "texel and were dropped"})
+    bundle.manifest["left_out"] = left_out
+    if root is not None:
+        bundle.save(root / "bundle")
+    stages.done(num_codes=codes_kept)
+
+    # 7. evaluate -----------------------------------------------------------------------------------
+    stages.start("evaluate", f"{len(test)} held-out views at {test.width}x{test.height}: field vs bundle")
+    field_images, field_seconds = evaluate.render_field_timed(
+        teacher, test, _progress_printer(log, "field (held-out)", progress))
+    player = BundleRenderer(bundle)
+    bundle_images = [player.render(test, i) for i in range(len(test))]
+    quality = evaluate.compare(bundle_images, field_images)
+    timing = player.time_frames(test, warmup=5, frames=cfg.eval.fps_frames)
+    points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(field, num_steps=s), test,
+                                       2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
+                                       cfg.teacher.num_steps, player)
+    fps_before = 1.0 / float(np.median(field_seconds))
+    fps_after = float(timing["fps"])
+    stages.done(psnr=quality["psnr"], ssim=quality["ssim"])
+
+    float16_bytes = int(bundle.float16_feature_bytes()) if hasattr(bundle, "float16_feature_bytes") else None
+    vq_bytes = int(bundle.feature_bytes_on_disk()) if hasattr(bundle, "feature_bytes_on_disk") else None
+    rep = {
+        "version": __version__,
+        "fps_before": fps_before,
+        "fps_after": fps_after,
+        "speedup": fps_after / fps_before,
+        "resolution": [test.width, test.height],
+        "device": _device_info(gl_info()),
+        "psnr": quality["psnr"],
+        "ssim": quality["ssim"],
+        "lpips": None,
+        "lpips_note": "no LPIPS backbone weights available locally (none are downloaded)",
+        "psnr_per_view": quality["psnr_per_view"],
+        "ssim_per_view": quality["ssim_per_view"],
+        "distill_seconds": time.perf_counter() - t_start,
+        "stage_seconds": stages.seconds,
+        "mesh_faces": mesh.num_faces,
+        "mesh_stats": {k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))},
+        "texture_resolution": [t.resolution, t.resolution],
+        "feature_dim": t.feature_dim,
+        "codebook_size": codes_kept,
+        "bundle_bytes": int(bundle.nbytes_on_disk()) if root is not None else None,
+        "feature_bytes_vq": vq_bytes,
+        "feature_bytes_float16": float16_bytes,
+        "left_out": left_out,
+        "view_dependence": {"used": use_viewdir, "measured_spread": view_spread},
+        "error_vs_runtime": points,
+        "frame_time_ms": {"field_median": 1000 * float(np.median(field_seconds)),
+                          "bundle_median": timing["median_ms"], "bundle_p90": timing.get("p90_ms")},
+        "train_log": train_history,
+        "views": {"train": len(train), "test": len(test),
+                  "train_resolution": [train.width, train.height]},
+        "teacher_steps": cfg.teacher.num_steps,
+        "config": cfg.to_dict(),
+    }
+    rep["distill_seconds"] = time.perf_counter() - t_start
+    if root is not None:
+        report_mod.write_run_outputs(root, rep, field_images, bundle_images)
+    log(report_mod.summary_table(rep))
+    return DistillResult(report=rep, out=root, bundle=bundle)
+
+
+def _progress_printer(log, label: str, enabled: bool):
+    if not enabled:
+        return None
+    state = {"t0": time.perf_counter()}
+
+    def show(done: int, total: int) -> None:
+        elapsed = time.perf_counter() - state["t0"]
+        if done == total or done == 1 or done % max(1, total // 5) == 0:
+            log(f"    {label}: {done}/{total} views ({elapsed:.1f} s)")
+
+    return show

@@ -1,0 +1,113 @@
+"""G-buffer rasterization of a mesh for a set of cameras (this module owns ``rasterize_gbuffer``).
+
+One framebuffer with three colour attachments -- RG32F uv, R32I face id, R32F view depth -- and a 24-bit depth
+buffer; depth test on (GL_LESS, first drawn wins ties), back-face culling off (meshes may be open), one sample
+at each pixel centre (no MSAA). The vertex stage is ``shaders.VERTEX_SHADER``, the same one playback uses, and
+the projection is ``projection.mvp_for`` (the pixel-centre convention of ``Cameras.rays``). Read-back flips the
+rows so row 0 is the top of the image.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry.mesh import MeshData
+from .context import get_context
+from .gbuffer import GBuffer
+from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for, view_matrix
+from .shaders import GBUFFER_FRAGMENT_SHADER, VERTEX_SHADER
+
+
+def _empty_gbuffer(n: int, h: int, w: int) -> GBuffer:
+    return GBuffer(uv=np.zeros((n, h, w, 2), np.float32), face_id=np.full((n, h, w), -1, np.int32),
+                   coverage=np.zeros((n, h, w), bool), depth=np.full((n, h, w), np.inf, np.float32))
+
+
+def mesh_vertex_array(ctx, program, mesh: MeshData):
+    """(vao, [buffers]) drawing ``mesh`` as indexed triangles with attributes in_position / in_uv.
+
+    ``mesh.uvs`` None is drawn with uv = 0. Attributes the program does not use are skipped. The caller
+    releases the vao and the buffers.
+    """
+    uvs = mesh.uvs if mesh.uvs is not None else np.zeros((mesh.num_vertices, 2), np.float32)
+    interleaved = np.ascontiguousarray(np.concatenate([mesh.vertices, uvs], axis=1), dtype=np.float32)
+    vbo = ctx.buffer(interleaved.tobytes())
+    ibo = ctx.buffer(np.ascontiguousarray(mesh.faces, dtype=np.int32).tobytes())
+    fmt, names = ["3f"], ["in_position"]
+    if "in_uv" in program:
+        fmt.append("2f")
+        names.append("in_uv")
+    else:
+        fmt.append("8x")
+    vao = ctx.vertex_array(program, [(vbo, " ".join(fmt), *names)], index_buffer=ibo, index_element_size=4)
+    return vao, [vbo, ibo]
+
+
+def _check_mesh(mesh: MeshData) -> None:
+    if mesh.num_faces and (int(mesh.faces.min()) < 0 or int(mesh.faces.max()) >= mesh.num_vertices):
+        raise ValueError(f"mesh faces index vertices outside [0, {mesh.num_vertices})")
+    if mesh.uvs is not None and mesh.uvs.shape[0] != mesh.num_vertices:
+        raise ValueError(f"mesh has {mesh.uvs.shape[0]} uvs for {mesh.num_vertices} vertices")
+
+
+def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None) -> GBuffer:
+    """Rasterize ``mesh`` for every camera of ``cameras``.
+
+    Args:
+        mesh: world-space MeshData; ``uvs`` may be None (then ``uv`` is all zeros).
+        cameras: ``Cameras`` (N cameras, W x H).
+        ctx: moderngl context (default :func:`context.get_context`).
+    Returns:
+        GBuffer with uv (N, H, W, 2) f32 (0 where empty), face_id (N, H, W) i32 (index into ``mesh.faces``,
+        -1 where empty), coverage (N, H, W) bool, depth (N, H, W) f32 view-space depth along -z (inf where empty).
+    """
+    n, w, h = len(cameras), int(cameras.width), int(cameras.height)
+    _check_mesh(mesh)
+    if mesh.num_faces == 0:
+        return _empty_gbuffer(n, h, w)
+    ctx = ctx if ctx is not None else get_context()
+    import moderngl  # noqa: PLC0415 (lazy: only the playback modules import moderngl)
+
+    bounds = mesh_bounds(mesh.vertices)
+    uv = np.empty((n, h, w, 2), np.float32)
+    face = np.empty((n, h, w), np.int32)
+    depth = np.empty((n, h, w), np.float32)
+
+    resources = []
+    try:
+        prog = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=GBUFFER_FRAGMENT_SHADER)
+        resources.append(prog)
+        vao, bufs = mesh_vertex_array(ctx, prog, mesh)
+        resources += [vao, *bufs]
+        tex_uv = ctx.texture((w, h), 2, dtype="f4")
+        tex_face = ctx.texture((w, h), 1, dtype="i4")
+        tex_depth = ctx.texture((w, h), 1, dtype="f4")
+        for t in (tex_uv, tex_face, tex_depth):
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        depth_rb = ctx.depth_renderbuffer((w, h))
+        fbo = ctx.framebuffer([tex_uv, tex_face, tex_depth], depth_rb)
+        resources += [tex_uv, tex_face, tex_depth, depth_rb, fbo]
+
+        fbo.use()
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.depth_func = "<"
+        for i in range(n):
+            near, far = camera_near_far(bounds, cameras, i)
+            prog["u_mvp"].write(gl_matrix(mvp_for(cameras, i, near, far)))
+            view = view_matrix(cameras.c2w[i].double().numpy())
+            prog["u_view_z"].value = tuple(float(x) for x in view[2])
+            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            vao.render(moderngl.TRIANGLES)
+            uv[i] = np.frombuffer(fbo.read(components=2, attachment=0, dtype="f4"), np.float32).reshape(h, w, 2)[::-1]
+            face[i] = np.frombuffer(fbo.read(components=1, attachment=1, dtype="i4"), np.int32).reshape(h, w)[::-1]
+            depth[i] = np.frombuffer(fbo.read(components=1, attachment=2, dtype="f4"), np.float32).reshape(h, w)[::-1]
+    finally:
+        for r in reversed(resources):
+            r.release()
+
+    face -= 1  # the shader writes face id + 1 so that the cleared value 0 means "empty"
+    coverage = face >= 0
+    depth[~coverage] = np.inf
+    uv[~coverage] = 0.0
+    return GBuffer(uv=uv, face_id=face, coverage=coverage, depth=depth)

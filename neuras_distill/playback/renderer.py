@@ -1,0 +1,163 @@
+"""Real-time playback of a baked bundle (this module owns ``BundleRenderer``).
+
+The bundle's mesh is drawn with ``shaders.VERTEX_SHADER`` and the bundle's own fragment shader into an RGBA8
+colour attachment (what a display shows) with a 24-bit depth buffer, depth test on, back-face culling off,
+cleared to ``bundle.background_color``. Texture binding follows docs/architecture.md: every entry of
+``bundle.textures`` (uniform name -> array) becomes a NEAREST, mipmap-free texture bound to the sampler of that
+name; uint16 arrays -> R16UI..RGBA16UI (``usampler2D``), float32 arrays -> R32F..RGBA32F (``sampler2D``),
+row 0 of the array = v = 0 (uploaded as is). Uniforms the compiled program optimised out are skipped.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import BadInputError
+from .context import get_context
+from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for
+from .rasterize import _check_mesh, mesh_vertex_array
+from .shaders import VERTEX_SHADER
+
+
+def _texture_layout(name: str, arr: np.ndarray) -> tuple[int, str]:
+    """(components, moderngl dtype) for a bundle texture array, or BadInputError."""
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and not 1 <= arr.shape[2] <= 4):
+        raise BadInputError(f"bundle texture {name!r} has shape {arr.shape}; expected (H, W) or (H, W, C), C in 1..4")
+    comps = 1 if arr.ndim == 2 else int(arr.shape[2])
+    if arr.dtype == np.uint16:
+        return comps, "u2"
+    if arr.dtype == np.float32:
+        return comps, "f4"
+    raise BadInputError(f"bundle texture {name!r} has dtype {arr.dtype}; expected uint16 or float32")
+
+
+class BundleRenderer:
+    """Draws a bundle (mesh + textures + fragment shader) for ``Cameras``.
+
+    Args:
+        bundle: object with ``mesh`` (MeshData with uvs), ``textures`` (dict uniform name -> np array),
+            ``fragment_shader`` (GLSL 330 source; see shaders.py for its interface), ``background_color`` (3 floats).
+        ctx: moderngl context (default :func:`context.get_context`).
+
+    Call :meth:`release` (or use as a context manager) to free the GL objects early.
+    """
+
+    def __init__(self, bundle, ctx=None):
+        import moderngl  # noqa: PLC0415 (lazy)
+
+        self._mgl = moderngl
+        self.ctx = ctx if ctx is not None else get_context()
+        self.bundle = bundle
+        mesh = bundle.mesh
+        _check_mesh(mesh)
+        self.background = tuple(float(c) for c in np.asarray(bundle.background_color, np.float64).reshape(3))
+        self._bounds = mesh_bounds(mesh.vertices)
+        self._fbo_cache: dict = {}
+        self._resources: list = []
+        self._textures: list = []
+        try:
+            self.program = self.ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=bundle.fragment_shader)
+        except moderngl.Error as exc:
+            raise BadInputError(f"the bundle's fragment shader does not compile or link: {exc}") from None
+        self._resources.append(self.program)
+        self.vao = None
+        if mesh.num_faces:
+            self.vao, bufs = mesh_vertex_array(self.ctx, self.program, mesh)
+            self._resources += [self.vao, *bufs]
+        max_size = int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 0) or 0)
+        for unit, (name, arr) in enumerate(sorted(bundle.textures.items())):
+            arr = np.ascontiguousarray(arr)
+            comps, dtype = _texture_layout(name, arr)
+            h, w = arr.shape[:2]
+            if max_size and max(h, w) > max_size:
+                raise BadInputError(f"bundle texture {name!r} is {w}x{h}; this GL allows at most {max_size} per side")
+            tex = self.ctx.texture((w, h), comps, arr.tobytes(), dtype=dtype, alignment=1)
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            tex.repeat_x = tex.repeat_y = False
+            self._resources.append(tex)
+            self._textures.append((unit, tex))
+            if name in self.program:
+                self.program[name].value = unit
+
+    # ------------------------------------------------------------------ internals
+    def _fbo(self, width: int, height: int):
+        key = (width, height)
+        if key not in self._fbo_cache:
+            color = self.ctx.renderbuffer((width, height), 4, dtype="f1")
+            depth = self.ctx.depth_renderbuffer((width, height))
+            fbo = self.ctx.framebuffer([color], depth)
+            self._fbo_cache[key] = (fbo, color, depth)
+        return self._fbo_cache[key][0]
+
+    def _set_camera(self, cameras, i: int) -> None:
+        near, far = camera_near_far(self._bounds, cameras, i)
+        if "u_mvp" in self.program:
+            self.program["u_mvp"].write(gl_matrix(mvp_for(cameras, i, near, far)))
+        if "u_cam_pos" in self.program:
+            self.program["u_cam_pos"].value = tuple(float(x) for x in cameras.c2w[i, :3, 3])
+
+    def _draw(self, cameras, i: int):
+        mgl = self._mgl
+        fbo = self._fbo(int(cameras.width), int(cameras.height))
+        fbo.use()
+        self.ctx.disable(mgl.CULL_FACE | mgl.BLEND)
+        self.ctx.enable(mgl.DEPTH_TEST)
+        self.ctx.depth_func = "<"
+        fbo.clear(*self.background, 1.0, depth=1.0)
+        if self.vao is not None:
+            self._set_camera(cameras, i)
+            for unit, tex in self._textures:
+                tex.use(location=unit)
+            self.vao.render(mgl.TRIANGLES)
+        return fbo
+
+    # ------------------------------------------------------------------ public
+    def render(self, cameras, i: int) -> np.ndarray:
+        """(H, W, 3) float32 image in [0, 1] of camera ``i`` (row 0 = top), quantised to 8 bits like a display."""
+        h, w = int(cameras.height), int(cameras.width)
+        fbo = self._draw(cameras, i)
+        data = np.frombuffer(fbo.read(components=3, alignment=1, dtype="f1"), np.uint8).reshape(h, w, 3)[::-1]
+        return data.astype(np.float32) / 255.0
+
+    def time_frames(self, cameras, indices=None, warmup: int = 5, frames: int = 30) -> dict:
+        """Frame times of full draws at the cameras' resolution, with ``ctx.finish()`` before each clock stop.
+
+        Cycles through ``indices`` (default all cameras); ``warmup`` frames are drawn first and not counted.
+        Returns ``{"median_ms", "p90_ms", "fps" (1000 / median_ms), "frames", "resolution" [W, H]}``.
+        """
+        idx = list(range(len(cameras))) if indices is None else [int(k) for k in indices]
+        if not idx:
+            raise ValueError("time_frames needs at least one camera index")
+        frames = max(1, int(frames))
+        for k in range(max(0, int(warmup))):
+            self._draw(cameras, idx[k % len(idx)])
+        self.ctx.finish()
+        times = np.empty(frames, np.float64)
+        for k in range(frames):
+            t0 = time.perf_counter()
+            self._draw(cameras, idx[k % len(idx)])
+            self.ctx.finish()
+            times[k] = (time.perf_counter() - t0) * 1000.0
+        median = float(np.median(times))
+        return {"median_ms": median, "p90_ms": float(np.percentile(times, 90)),
+                "fps": 1000.0 / median if median > 0 else float("inf"), "frames": frames,
+                "resolution": [int(cameras.width), int(cameras.height)]}
+
+    def release(self) -> None:
+        """Free the GL objects (program, buffers, textures, framebuffers)."""
+        for fbo, color, depth in self._fbo_cache.values():
+            fbo.release(); color.release(); depth.release()  # noqa: E702
+        self._fbo_cache.clear()
+        for r in reversed(self._resources):
+            r.release()
+        self._resources.clear()
+        self._textures.clear()
+        self.vao = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()

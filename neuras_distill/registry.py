@@ -1,0 +1,46 @@
+"""Adapter registry: finds field adapters through the ``neuras_distill.adapters`` entry-point group.
+
+An adapter is a class with ``name`` (str), ``sniff(path: Path) -> bool`` (decides from the file's content,
+never its extension, reading only a small header) and ``load(path: Path, **options) -> field``. Our own
+adapters register exactly as a third party's would (see ``pyproject.toml``).
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import entry_points
+from pathlib import Path
+
+from .errors import BadInputError, require
+
+GROUP = "neuras_distill.adapters"
+
+
+def available_adapters() -> dict:
+    """name -> adapter class, for every installed adapter."""
+    adapters = {}
+    for ep in entry_points(group=GROUP):
+        adapters[ep.name] = ep.load()
+    return adapters
+
+
+def load_field(path, adapter: str | None = None, **options):
+    """Load a field from ``path`` with the named adapter, or the first adapter whose ``sniff`` accepts it.
+
+    ``path`` may also be ``synthetic:NAME`` or ``synthetic:NAME:KIND`` for the embedded scenes.
+    """
+    adapters = available_adapters()
+    text = str(path)
+    if text.startswith("synthetic:"):
+        adapter, path = "synthetic", text
+    else:
+        path = Path(path)
+        require(path.exists(), f"{path} does not exist; give the path of a trained field's checkpoint")
+        require(path.is_file(), f"{path} is a directory; give the checkpoint file inside it")
+    if adapter is not None:
+        require(adapter in adapters, f"unknown adapter {adapter!r}; installed: {', '.join(sorted(adapters))}")
+        return adapters[adapter]().load(path, **options)
+    for name, cls in adapters.items():
+        if cls().sniff(path):
+            return cls().load(path, **options)
+    raise BadInputError(f"{path} is not a checkpoint any installed adapter reads "
+                        f"(tried: {', '.join(sorted(adapters))}); pass adapter=... if you know its format")

@@ -1,0 +1,77 @@
+"""Numerically stable volume-rendering compositing in float32 (stability note, A1 and A2).
+
+This module owns the formulas that turn densities or SDF values along rays into opacities, transmittance
+and weights. Samples run along the last dimension: tensors are (..., S) for S samples per ray.
+
+* density: ``alpha = -expm1(-tau)`` with ``tau = sigma * delta`` clamped (so ``inf * 0`` cannot occur);
+  transmittance in log space, ``T_i = exp(-sum_{j<i} tau_j)``.
+* SDF (NeuS): exact discrete opacity ``alpha = max(1 - Φ(s f_next) / Φ(s f_prev), 0)`` (Φ the sigmoid),
+  computed in log space with ``logsigmoid`` so that it stays exact for s up to 1e6 and for intervals deep
+  inside or far outside; transmittance ``T_i = prod_{j<i} (1 - alpha_j)`` (torch.cumprod, whose backward is
+  correct at exact zeros).
+* weights ``w_i = T_i * alpha_i`` (sum <= 1 by telescoping).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+TAU_MAX = 1e10
+
+
+def optical_depth(sigma: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
+    """(..., S) clamped optical depth ``tau = sigma * delta`` in fp32 (NaN -> 0, Inf -> TAU_MAX)."""
+    sigma = sigma.float().clamp(0.0, TAU_MAX)
+    deltas = deltas.float().clamp(min=0.0)
+    tau = torch.nan_to_num(sigma * deltas, nan=0.0, posinf=TAU_MAX)
+    return tau.clamp(0.0, TAU_MAX)
+
+
+def alpha_from_density(sigma: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
+    """(..., S) opacity ``1 - exp(-sigma * delta)`` written as ``-expm1(-tau)`` (exact for tiny tau)."""
+    return -torch.expm1(-optical_depth(sigma, deltas))
+
+
+def transmittance_from_density(sigma: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
+    """(..., S) exclusive transmittance ``exp(-sum_{j<i} tau_j)`` (log space, T_0 = 1)."""
+    tau = optical_depth(sigma, deltas)
+    return torch.exp(-(torch.cumsum(tau, dim=-1) - tau))
+
+
+def alpha_from_sdf(sdf_prev: torch.Tensor, sdf_next: torch.Tensor, inv_s) -> torch.Tensor:
+    """(..., S) NeuS discrete opacity of the intervals whose endpoint SDFs are ``sdf_prev``, ``sdf_next``.
+
+    ``alpha = max(1 - sigmoid(s f_next) / sigmoid(s f_prev), 0)`` computed as
+    ``-expm1(min(logsigmoid(s f_next) - logsigmoid(s f_prev), 0))``. ``inv_s`` (the paper's s) is a float
+    or a tensor broadcastable to the inputs.
+    """
+    s = torch.as_tensor(inv_s, dtype=torch.float32)
+    d = F.logsigmoid(s * sdf_next.float()) - F.logsigmoid(s * sdf_prev.float())
+    return (-torch.expm1(d.clamp(max=0.0))).clamp(0.0, 1.0)
+
+
+def transmittance_from_alpha(alpha: torch.Tensor) -> torch.Tensor:
+    """(..., S) exclusive transmittance ``prod_{j<i} (1 - alpha_j)`` via torch.cumprod (T_0 = 1)."""
+    one_minus = (1.0 - alpha.float()).clamp(0.0, 1.0)
+    ones = torch.ones_like(one_minus[..., :1])
+    return torch.cumprod(torch.cat([ones, one_minus[..., :-1]], dim=-1), dim=-1)
+
+
+def weights(alpha: torch.Tensor, transmittance: torch.Tensor) -> torch.Tensor:
+    """(..., S) compositing weights ``T_i * alpha_i``."""
+    return alpha * transmittance
+
+
+def weights_from_density(sigma: torch.Tensor, deltas: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(weights (..., S), exclusive transmittance (..., S)) for densities ``sigma`` and step lengths."""
+    tau = optical_depth(sigma, deltas)
+    alpha = -torch.expm1(-tau)
+    trans = torch.exp(-(torch.cumsum(tau, dim=-1) - tau))
+    return alpha * trans, trans
+
+
+def weights_from_alpha(alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(weights (..., S), exclusive transmittance (..., S)) for per-sample opacities."""
+    trans = transmittance_from_alpha(alpha)
+    return alpha * trans, trans

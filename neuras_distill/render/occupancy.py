@@ -1,0 +1,125 @@
+"""Occupancy grid over a field's aabb, for empty-space skipping in the volume renderer.
+
+This module owns :class:`OccupancyGrid`: a (R, R, R) bool grid of cells over the aabb (indexed
+``[ix, iy, iz]``, cell (i, j, k) spans ``aabb_min + (i, j, k) * cell`` to ``... + cell``), built from the field:
+
+* SDF fields: a cell is occupied when ``|sdf(cell centre)| < cell half-diagonal + margin``; the default
+  margin covers the width of the NeuS opacity ramp (``12 / inv_s``) plus one ray step, so skipping
+  unoccupied cells changes no rendered value by more than ~1e-4.
+* density fields: a cell is occupied when the max σ over a few jittered samples in it exceeds
+  ``threshold``; the result is dilated by one cell so thin shells between samples are not lost.
+
+Points outside the aabb are reported empty (the renderer never samples there).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ..errors import require
+
+
+class OccupancyGrid:
+    """Boolean occupancy of the cells of a regular grid over ``aabb``.
+
+    Attributes:
+        aabb: (2, 3) float32 box.
+        occupied: (R, R, R) bool tensor indexed ``[ix, iy, iz]``.
+        resolution: R.
+    """
+
+    def __init__(self, aabb: torch.Tensor, occupied: torch.Tensor):
+        self.aabb = torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3)
+        occupied = torch.as_tensor(occupied, dtype=torch.bool)
+        require(occupied.ndim == 3, f"occupancy grid must be 3D, got shape {tuple(occupied.shape)}")
+        self.occupied = occupied
+        self.shape = torch.tensor(occupied.shape)
+        self.cell = (self.aabb[1] - self.aabb[0]) / self.shape.float()
+        self._flat = occupied.reshape(-1).contiguous()
+        self._strides = torch.tensor([occupied.shape[1] * occupied.shape[2], occupied.shape[2], 1])
+
+    @property
+    def resolution(self) -> int:
+        return int(self.shape[0])
+
+    @property
+    def fraction(self) -> float:
+        """Fraction of occupied cells."""
+        return float(self._flat.float().mean())
+
+    def __repr__(self) -> str:
+        return f"OccupancyGrid({tuple(self.occupied.shape)}, occupied={self.fraction:.3%})"
+
+    # ------------------------------------------------------------------ queries
+    def cell_centers(self) -> torch.Tensor:
+        """(R, R, R, 3) world positions of the cell centres."""
+        axes = [self.aabb[0, k] + (torch.arange(int(self.shape[k])) + 0.5) * self.cell[k] for k in range(3)]
+        return torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1)
+
+    def query(self, x: torch.Tensor) -> torch.Tensor:
+        """x (..., 3) world points -> (...) bool, True where the containing cell is occupied."""
+        rel = (x.float() - self.aabb[0]) / self.cell
+        idx = rel.floor().long()
+        inside = ((idx >= 0) & (idx < self.shape)).all(dim=-1)
+        idx = torch.minimum(idx.clamp(min=0), self.shape - 1)
+        flat = (idx * self._strides).sum(dim=-1)
+        return self._flat[flat] & inside
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_field(cls, field, resolution: int = 128, *, margin: float | None = None,
+                   threshold: float = 0.01, samples_per_cell: int = 4, step: float | None = None,
+                   chunk: int = 2**18, seed: int = 0) -> "OccupancyGrid":
+        """Build the grid from ``field`` (kind ``"sdf"`` or ``"density"``).
+
+        Args:
+            resolution: cells per axis R (cubic grid; cells are boxes of size aabb_extent / R).
+            margin: SDF only: extra distance (world units) beyond the cell half-diagonal; default
+                ``12 / inv_s + step`` (inv_s defaulting as in the renderer).
+            threshold: density only: σ above which a cell is occupied (σ·δ = 1e-4 at δ = 0.01).
+            samples_per_cell: density only: jittered samples per cell (max taken).
+            step: the ray step the renderer will use (widens the SDF margin); default aabb diagonal / 256.
+        """
+        require(resolution >= 1, f"occupancy resolution must be >= 1, got {resolution}")
+        aabb = torch.as_tensor(field.aabb, dtype=torch.float32).reshape(2, 3).cpu()
+        r = int(resolution)
+        extent = aabb[1] - aabb[0]
+        cell = extent / r
+        diag = float(extent.norm())
+        step = diag / 256 if step is None else float(step)
+        axes = [aabb[0, k] + (torch.arange(r) + 0.5) * cell[k] for k in range(3)]
+        centers = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+        out = torch.empty(centers.shape[0], dtype=torch.bool)
+        with torch.no_grad():
+            if field.kind == "sdf":
+                inv_s = default_inv_s(field)
+                if margin is None:
+                    margin = 12.0 / inv_s + step
+                limit = 0.5 * float(cell.norm()) + float(margin)
+                for i in range(0, centers.shape[0], chunk):
+                    out[i:i + chunk] = field.geometry(centers[i:i + chunk]).reshape(-1).abs() < limit
+                occ = out.reshape(r, r, r)
+            else:
+                gen = torch.Generator().manual_seed(seed)
+                for i in range(0, centers.shape[0], chunk):
+                    c = centers[i:i + chunk]
+                    best = torch.zeros(c.shape[0])
+                    for _ in range(max(1, samples_per_cell)):
+                        jitter = (torch.rand(c.shape, generator=gen) - 0.5) * cell
+                        best = torch.maximum(best, field.geometry(c + jitter).reshape(-1).float())
+                    out[i:i + chunk] = best > threshold
+                occ = out.reshape(r, r, r)
+                occ = torch.nn.functional.max_pool3d(occ[None, None].float(), 3, stride=1, padding=1)[0, 0] > 0
+        return cls(aabb, occ)
+
+
+def default_inv_s(field) -> float:
+    """NeuS sharpness of an SDF field: ``field.inv_s`` or, if absent, 1000 / (aabb diagonal / sqrt 3)."""
+    inv_s = getattr(field, "inv_s", None)
+    if inv_s is not None:
+        return float(inv_s)
+    aabb = torch.as_tensor(field.aabb, dtype=torch.float32).reshape(2, 3)
+    size = float((aabb[1] - aabb[0]).norm()) / math.sqrt(3.0)
+    return 1000.0 / max(size, 1e-12)

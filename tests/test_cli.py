@@ -1,0 +1,61 @@
+"""The command line: fast help, cheap import, exit code 2 with one line for bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from neuras_distill.cli import main
+
+
+def _run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "neuras_distill.cli", *args], capture_output=True, text=True,
+                          cwd=cwd, timeout=120)
+
+
+def test_help_is_fast_and_imports_nothing_heavy():
+    code = ("import sys, neuras_distill.cli as c\n"
+            "try:\n    c.build_parser().parse_args(['--help'])\nexcept SystemExit: pass\n"
+            "heavy = [m for m in ('torch', 'moderngl', 'open3d', 'pymeshlab', 'xatlas', 'skimage') "
+            "if m in sys.modules]\nprint('HEAVY', heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert "HEAVY []" in out.stdout
+    code = "import sys, neuras_distill as nd\nprint('HEAVY', [m for m in ('torch', 'moderngl') if m in sys.modules])"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert "HEAVY []" in out.stdout
+
+
+def _one_line_error(result, fragment):
+    assert result.returncode == 2, result.stderr
+    lines = [ln for ln in result.stderr.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
+    assert fragment in lines[0]
+
+
+def test_foreign_output_folder_is_refused(tmp_path):
+    foreign = tmp_path / "notes"
+    foreign.mkdir()
+    (foreign / "keep.txt").write_text("mine")
+    result = _run("demo", "--out", str(foreign), "--quiet")
+    _one_line_error(result, "not written by neuras-distill")
+    assert (foreign / "keep.txt").read_text() == "mine" and len(list(foreign.iterdir())) == 1
+
+
+def test_face_budget_zero(tmp_path):
+    result = _run("demo", "--out", str(tmp_path / "r"), "--face-budget", "0", "--quiet")
+    _one_line_error(result, "face budget")
+    assert not (tmp_path / "r").exists()
+
+
+def test_unknown_scene(tmp_path):
+    result = _run("from-synthetic", "teapot-xl", "--out", str(tmp_path / "r"), "--quiet")
+    _one_line_error(result, "teapot-xl")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_view_missing_bundle(tmp_path, capsys):
+    assert main(["view", str(tmp_path / "nothing"), "--orbit"]) == 2
+    err = capsys.readouterr().err
+    assert "nothing" in err and len(err.strip().splitlines()) == 1

@@ -1,0 +1,80 @@
+"""Metrics (PSNR/SSIM), settings with presets, run folders that never leave half-written output."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from neuras_distill import metrics
+from neuras_distill.config import load_config, preset_names
+from neuras_distill.errors import BadInputError
+from neuras_distill.pipeline.rundir import MARKER, RunFolder
+
+
+def test_psnr_values():
+    a = np.zeros((8, 8, 3))
+    b = np.full((8, 8, 3), 0.1)
+    assert metrics.psnr(a, b) == pytest.approx(20.0)
+    assert metrics.psnr(a, a) == metrics.MAX_PSNR
+    mask = np.zeros((8, 8), bool)
+    mask[:2] = True
+    c = a.copy()
+    c[2:] = 1.0
+    assert metrics.psnr(c, a, mask) == metrics.MAX_PSNR
+
+
+def test_ssim_values():
+    rng = np.random.default_rng(0)
+    img = rng.random((40, 40, 3))
+    assert metrics.ssim(img, img) == pytest.approx(1.0)
+    noisy = np.clip(img + rng.normal(0, 0.2, img.shape), 0, 1)
+    assert 0.2 < metrics.ssim(noisy, img) < 0.9
+    unrelated = rng.random((40, 40, 3))
+    assert metrics.ssim(unrelated, img) < 0.1
+
+
+def test_presets_only_override():
+    base = load_config()
+    fast = load_config("fast")
+    assert fast.train.steps < base.train.steps
+    assert fast.train.lr == base.train.lr  # not mentioned in the preset: the default stands
+    assert set(preset_names()) >= {"object", "fast", "quality"}
+    assert load_config("object") == base
+
+
+def test_bad_settings(tmp_path):
+    with pytest.raises(BadInputError, match="face budget"):
+        load_config(overrides={"geometry": {"face_budget": 0}})
+    with pytest.raises(BadInputError, match="unknown setting"):
+        load_config(overrides={"train": {"stepz": 3}})
+    with pytest.raises(BadInputError, match="unknown preset"):
+        load_config("nope")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[train\nsteps=")
+    with pytest.raises(BadInputError, match="not valid TOML"):
+        load_config(path=bad)
+
+
+def test_run_folder_is_atomic(tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(RuntimeError):
+        with RunFolder(out) as tmp:
+            (tmp / "half.txt").write_text("x")
+            raise RuntimeError("boom")
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+    with RunFolder(out) as tmp:
+        (tmp / "a.txt").write_text("1")
+    assert (out / "a.txt").read_text() == "1" and (out / MARKER).exists()
+    with RunFolder(out) as tmp:  # ours: replaced
+        (tmp / "b.txt").write_text("2")
+    assert not (out / "a.txt").exists() and (out / "b.txt").exists()
+
+
+def test_run_folder_refuses_foreign(tmp_path):
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("precious")
+    with pytest.raises(BadInputError, match="not written by neuras-distill"):
+        RunFolder(foreign)
+    assert (foreign / "thesis.tex").read_text() == "precious"
