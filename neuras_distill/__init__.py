@@ -15,6 +15,7 @@ _LAZY = {
     "BadInputError": ("neuras_distill.errors", "BadInputError"),
     "distill": ("neuras_distill.pipeline.run", "distill"),
     "DistillConfig": ("neuras_distill.config", "DistillConfig"),
+    "load_config": ("neuras_distill.config", "load_config"),
     "load_field": ("neuras_distill.registry", "load_field"),
     "load_bundle": ("neuras_distill.bake.bundle", "load_bundle"),
     "make_scene": ("neuras_distill.fields.synthetic", "make_scene"),

@@ -138,9 +138,9 @@ def test_face_id_nearest_wins_and_empty_is_minus_one(near_first):
     quads = [near_q, far_q] if near_first else [far_q, near_q]
     verts = np.concatenate(quads)
     faces = [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
-    cams = Cameras(torch.eye(4)[None].clone(), 40.0, 40.0, 32.0, 32.0, 64, 64)
-    cams.c2w[0, 2, 3] = 4.0
-    cams = Cameras(cams.c2w, 40.0, 40.0, 32.0, 32.0, 64, 64)
+    pose = torch.eye(4)
+    pose[2, 3] = 4.0  # at z = 4 looking down -z
+    cams = Cameras(pose[None], 40.0, 40.0, 32.0, 32.0, 64, 64)
     gb = rasterize_gbuffer(MeshData(verts, faces, np.zeros((8, 2))), cams)
     near_ids = {0, 1} if near_first else {2, 3}
     far_ids = {2, 3} if near_first else {0, 1}
@@ -241,3 +241,61 @@ void main() { f_color = vec4(abs(u_cam_pos) / 4.0, 1.0); }
     assert stats["frames"] == 3 and stats["resolution"] == [64, 48]
     assert math.isfinite(stats["fps"]) and stats["fps"] > 0 and stats["median_ms"] > 0
     assert stats["p90_ms"] >= stats["median_ms"]
+
+
+@pytest.mark.gl
+@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
+def test_render_orbit_frames_writes_pngs(tmp_path):
+    from PIL import Image
+
+    from neuras_distill.playback.renderer import BundleRenderer
+    from neuras_distill.playback.viewer import render_orbit_frames
+
+    bundle = _bundle()
+    cams = Cameras.orbit([0, 0, 0], 2.5, 3, width=40, height=30, up_axis=1, elevation_deg=10.0)
+    paths = render_orbit_frames(bundle, cams, tmp_path / "orbit")
+    assert [p.name for p in paths] == ["frame_0000.png", "frame_0001.png", "frame_0002.png"]
+    with BundleRenderer(bundle) as r:
+        ref = r.render(cams, 1)
+    png = np.asarray(Image.open(paths[1]).convert("RGB"), np.float32) / 255.0
+    assert png.shape == (30, 40, 3) and np.abs(png - ref).max() <= 0.5 / 255
+
+
+def test_context_failure_is_glunavailable_with_reason(monkeypatch):
+    from neuras_distill.playback import context
+
+    moderngl = pytest.importorskip("moderngl")
+
+    def boom(*args, **kwargs):
+        raise Exception("libEGL.so.1: cannot open shared object file")
+
+    monkeypatch.setattr(moderngl, "create_context", boom)
+    monkeypatch.setattr(context, "_cache", {"pid": None, "ctx": None, "error": None})
+    with pytest.raises(context.GLUnavailable, match="libEGL.so.1.*libegl1"):
+        context.get_context()
+    ok, reason = context.gl_available()
+    assert not ok and "EGL backend" in reason
+
+
+def test_playback_modules_import_without_moderngl():
+    import subprocess
+    import sys
+
+    code = ("import sys, neuras_distill.playback.renderer, neuras_distill.playback.rasterize, "
+            "neuras_distill.playback.viewer, neuras_distill.playback.context; "
+            "assert 'moderngl' not in sys.modules, 'moderngl imported eagerly'")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.gl
+@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
+def test_render_orbit_frames_cli_form_frames_the_mesh(tmp_path):
+    from neuras_distill.playback.rasterize import rasterize_gbuffer
+    from neuras_distill.playback.viewer import orbit_cameras_for, render_orbit_frames
+
+    bundle = _bundle()
+    paths = render_orbit_frames(bundle, tmp_path / "o", frames=2, width=32, height=24)
+    assert len(paths) == 2 and all(p.exists() for p in paths)
+    gb = rasterize_gbuffer(bundle.mesh, orbit_cameras_for(bundle.mesh, 4, 32, 24, elevation_deg=60.0))
+    assert gb.coverage.any(axis=(1, 2)).all()  # every view sees the quad
+    assert not gb.coverage[:, [0, -1], :].any() and not gb.coverage[:, :, [0, -1]].any()  # and it fits the frame

@@ -37,8 +37,9 @@ class OccupancyGrid:
         self.occupied = occupied
         self.shape = torch.tensor(occupied.shape)
         self.cell = (self.aabb[1] - self.aabb[0]) / self.shape.float()
-        self._flat = occupied.reshape(-1).contiguous()
-        self._strides = torch.tensor([occupied.shape[1] * occupied.shape[2], occupied.shape[2], 1])
+        # padded by one empty cell on every side so that out-of-box points need no separate test
+        self._padded = torch.nn.functional.pad(occupied, (1, 1, 1, 1, 1, 1)).reshape(-1).contiguous()
+        self._pshape = [int(s) + 2 for s in occupied.shape]
 
     @property
     def resolution(self) -> int:
@@ -60,12 +61,26 @@ class OccupancyGrid:
 
     def query(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., 3) world points -> (...) bool, True where the containing cell is occupied."""
-        rel = (x.float() - self.aabb[0]) / self.cell
-        idx = rel.floor().long()
-        inside = ((idx >= 0) & (idx < self.shape)).all(dim=-1)
-        idx = torch.minimum(idx.clamp(min=0), self.shape - 1)
-        flat = (idx * self._strides).sum(dim=-1)
-        return self._flat[flat] & inside
+        x = x.float()
+        inv = 1.0 / self.cell
+        return self._lookup(*((x[..., k] - self.aabb[0, k]) * inv[k] for k in range(3)))
+
+    def query_rays(self, origins: torch.Tensor, dirs: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """Occupancy of the points ``origins[a] + t[a, k] * dirs[a]``: origins, dirs (A, 3), t (A, K)
+        -> (A, K) bool. Cheaper than :meth:`query` (no (A, K, 3) tensor is built)."""
+        inv = 1.0 / self.cell
+        a = (origins.float() - self.aabb[0]) * inv  # (A, 3) in cell units
+        b = dirs.float() * inv
+        return self._lookup(*(torch.addcmul(a[:, k:k + 1], t, b[:, k:k + 1]) for k in range(3)))
+
+    def _lookup(self, rx: torch.Tensor, ry: torch.Tensor, rz: torch.Tensor) -> torch.Tensor:
+        """Occupancy at continuous cell coordinates (any shape; cell i spans [i, i + 1))."""
+        px, py, pz = self._pshape
+        ix = (rx.clamp(-1.0, px - 2.0).floor_() + 1.0).mul_(py)
+        iy = ry.clamp(-1.0, py - 2.0).floor_() + 1.0
+        iz = rz.clamp(-1.0, pz - 2.0).floor_() + 1.0
+        flat = ix.add_(iy).mul_(pz).add_(iz)
+        return self._padded[flat.long()]
 
     # ------------------------------------------------------------------ construction
     @classmethod

@@ -106,81 +106,90 @@ class VolumeRenderer:
     def _render_chunk(self, origins: torch.Tensor, dirs: torch.Tensor) -> dict[str, torch.Tensor]:
         n_rays = origins.shape[0]
         self.stats["rays"] += n_rays
-        rgb = torch.zeros(n_rays, 3)
-        depth = torch.zeros(n_rays)
-        opacity = torch.zeros(n_rays)
+        out_rgb = torch.zeros(n_rays, 3)
+        out_wt = torch.zeros(n_rays)
+        out_w = torch.zeros(n_rays)
         t_near, t_far, hit = ray_aabb(origins, dirs, self.aabb)
         ids = torch.nonzero(hit).flatten()
         if ids.numel():
-            o, d = origins[ids], dirs[ids]
-            t0 = t_near[ids]
+            # state of the live rays, compacted whenever some of them finish
+            o, d, t0 = origins[ids], dirs[ids], t_near[ids]
             length = t_far[ids] - t0
-            n_steps = torch.ceil(length / self.step).clamp(min=1).long()
+            n_steps = torch.ceil(length / self.step).clamp(min=1)
             dt = length / n_steps
             acc_rgb = torch.zeros(ids.numel(), 3)
             acc_wt = torch.zeros(ids.numel())
             acc_w = torch.zeros(ids.numel())
             trans = torch.ones(ids.numel())
-            live = torch.arange(ids.numel())
-            k0 = 0
             ks = torch.arange(self.segment, dtype=torch.float32)
-            while live.numel():
-                self._march_segment(live, k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w)
+            k0 = 0
+            while ids.numel():
+                trans = self._march_segment(k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w)
                 k0 += self.segment
-                keep = (trans[live] > self.early_stop) & (n_steps[live] > k0)
-                live = live[keep]
-            rgb[ids] = acc_rgb
-            opacity[ids] = acc_w
-            depth[ids] = torch.where(acc_w > 0, acc_wt / acc_w.clamp(min=1e-12), torch.zeros_like(acc_w))
-        rgb = rgb + (1.0 - opacity).clamp(min=0.0)[:, None] * self.background(dirs)
-        return {"rgb": rgb.clamp(0.0, 1.0), "depth": depth, "opacity": opacity.clamp(0.0, 1.0)}
+                keep = (trans > self.early_stop) & (n_steps > k0)
+                if bool(keep.all()):
+                    continue
+                done = ~keep
+                out_rgb[ids[done]] = acc_rgb[done]
+                out_wt[ids[done]] = acc_wt[done]
+                out_w[ids[done]] = acc_w[done]
+                ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w = (
+                    v[keep] for v in (ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w))
+        depth = torch.where(out_w > 0, out_wt / out_w.clamp(min=1e-12), torch.zeros_like(out_w))
+        rgb = out_rgb + (1.0 - out_w).clamp(min=0.0)[:, None] * self.background(dirs)
+        return {"rgb": rgb.clamp(0.0, 1.0), "depth": depth, "opacity": out_w.clamp(0.0, 1.0)}
 
-    def _march_segment(self, live, k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w) -> None:
-        """Advance rays ``live`` by one segment of steps k0 .. k0 + segment - 1 (updates accumulators)."""
+    def _march_segment(self, k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w) -> torch.Tensor:
+        """Advance the live rays by steps k0 .. k0 + segment - 1; updates the accumulators in place and
+        returns the transmittance after the segment. All inputs are per live ray (A, ...)."""
         k = k0 + ks  # (K,)
-        lo, ld, lt0, ldt = o[live], d[live], t0[live], dt[live]
-        valid = k[None, :] < n_steps[live][:, None]  # (A, K)
-        t_mid = lt0[:, None] + (k[None, :] + 0.5) * ldt[:, None]  # (A, K)
-        x_mid = lo[:, None, :] + t_mid[..., None] * ld[:, None, :]  # (A, K, 3)
-        occ = valid & self.occupancy.query(x_mid) if self.occupancy is not None else valid
-        if not bool(occ.any()):
-            return
-        n_live, n_k = occ.shape
+        n_k = k.shape[0]
+        valid = k[None, :] < n_steps[:, None]  # (A, K)
+        t_mid = torch.addcmul(t0[:, None], k[None, :] + 0.5, dt[:, None])  # (A, K) interval midpoints
+        occ = valid & self.occupancy.query_rays(o, d, t_mid) if self.occupancy is not None else valid
+        flat = torch.nonzero(occ.reshape(-1)).flatten()
+        if flat.numel() == 0:
+            return trans
+        n_live = occ.shape[0]
         if self.kind == "density":
-            sigma = torch.zeros(n_live, n_k)
-            pts = x_mid[occ]
+            rows = flat // n_k
+            pts = torch.addcmul(o[rows], t_mid.reshape(-1)[flat][:, None], d[rows])
             self.stats["geometry_points"] += pts.shape[0]
-            sigma[occ] = self.field.geometry(pts).reshape(-1).float()
-            tau = optical_depth(sigma, ldt[:, None])
+            sigma = torch.zeros(n_live * n_k)
+            sigma[flat] = self.field.geometry(pts).reshape(-1).float()
+            tau = optical_depth(sigma.reshape(n_live, n_k), dt[:, None])
             alpha = -torch.expm1(-tau)
             csum = torch.cumsum(tau, dim=-1)
-            t_seg = trans[live][:, None] * torch.exp(-(csum - tau))
-            trans[live] = trans[live] * torch.exp(-csum[:, -1])
+            t_seg = trans[:, None] * torch.exp(-(csum - tau))
+            trans_after = trans * torch.exp(-csum[:, -1])
         else:
             ends = torch.zeros(n_live, n_k + 1, dtype=torch.bool)
             ends[:, :-1] |= occ
             ends[:, 1:] |= occ
-            t_end = lt0[:, None] + torch.cat([k, k[-1:] + 1])[None, :] * ldt[:, None]  # (A, K+1)
-            rows, cols = torch.nonzero(ends, as_tuple=True)
-            pts = lo[rows] + t_end[rows, cols][:, None] * ld[rows]
+            eflat = torch.nonzero(ends.reshape(-1)).flatten()
+            rows = eflat // (n_k + 1)
+            cols = eflat - rows * (n_k + 1)
+            t_end = torch.addcmul(t0[rows], cols.float() + k0, dt[rows])
+            pts = torch.addcmul(o[rows], t_end[:, None], d[rows])
             self.stats["geometry_points"] += pts.shape[0]
-            f = torch.full((n_live, n_k + 1), _FAR_SDF)
-            f[rows, cols] = self.field.geometry(pts).reshape(-1).float()
+            f = torch.full((n_live * (n_k + 1),), _FAR_SDF)
+            f[eflat] = self.field.geometry(pts).reshape(-1).float()
+            f = f.reshape(n_live, n_k + 1)
             alpha = alpha_from_sdf(f[:, :-1], f[:, 1:], self.inv_s) * occ
-            t_excl = transmittance_from_alpha(alpha)
-            t_seg = trans[live][:, None] * t_excl
-            trans[live] = t_seg[:, -1] * (1.0 - alpha[:, -1])
+            t_seg = trans[:, None] * transmittance_from_alpha(alpha)
+            trans_after = t_seg[:, -1] * (1.0 - alpha[:, -1])
         w = t_seg * alpha  # (A, K)
-        acc_w[live] += w.sum(-1)
-        acc_wt[live] += (w * t_mid).sum(-1)
-        shade = w > self.min_weight
-        if bool(shade.any()):
-            rows, cols = torch.nonzero(shade, as_tuple=True)
+        acc_w += w.sum(-1)
+        acc_wt += (w * t_mid).sum(-1)
+        sflat = torch.nonzero((w > self.min_weight).reshape(-1)).flatten()
+        if sflat.numel():
+            rows = sflat // n_k
             self.stats["radiance_points"] += rows.numel()
-            c = self.field.radiance(x_mid[rows, cols], ld[rows]).float().reshape(-1, 3)
-            contrib = torch.zeros(n_live, 3)
-            contrib.index_add_(0, rows, w[rows, cols][:, None] * c)
-            acc_rgb[live] += contrib
+            dirs = d[rows]
+            x = torch.addcmul(o[rows], t_mid.reshape(-1)[sflat][:, None], dirs)
+            c = self.field.radiance(x, dirs).float().reshape(-1, 3)
+            acc_rgb.index_add_(0, rows, w.reshape(-1)[sflat][:, None] * c)
+        return trans_after
 
     # ------------------------------------------------------------------ cameras
     @torch.no_grad()

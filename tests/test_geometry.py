@@ -1,0 +1,350 @@
+"""Tests for neuras_distill.geometry: grid sampling, marching cubes, cleanup/decimation, culling, unwrap.
+
+The fields here are tiny analytic ones defined in this file (no dependency on neuras_distill.fields).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from neuras_distill.errors import BadInputError
+from neuras_distill.geometry.cleanup import clean_mesh, decimate, is_watertight
+from neuras_distill.geometry.extract import extract_mesh
+from neuras_distill.geometry.grid import grid_spec, sample_grid
+from neuras_distill.geometry.marching import marching_cubes_field, signed_volume
+from neuras_distill.geometry.mesh import MeshData
+from neuras_distill.geometry.unwrap import CRASH_HOOK_ENV, unwrap, uv_face_areas
+from neuras_distill.geometry.visibility import cull_unseen_faces
+from neuras_distill.render.cameras import Cameras, look_at
+
+
+# ---------------------------------------------------------------------------------------------- analytic fields
+class SphereSDF:
+    kind = "sdf"
+
+    def __init__(self, radius=0.5, center=(0.0, 0.0, 0.0), aabb=((-1, -1, -1), (1, 1, 1))):
+        self.radius = radius
+        self.center = torch.tensor(center, dtype=torch.float32)
+        self.aabb = torch.tensor(aabb, dtype=torch.float32)
+
+    def geometry(self, x):
+        return (x - self.center).norm(dim=-1) - self.radius
+
+    def exact(self, p: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(p.astype(np.float64) - self.center.double().numpy(), axis=-1) - self.radius
+
+
+class TorusSDF:
+    kind = "sdf"
+
+    def __init__(self, major=0.6, minor=0.25):
+        self.major, self.minor = major, minor
+        self.aabb = torch.tensor([[-1.0, -1.0, -0.5], [1.0, 1.0, 0.5]])  # non-cubic box
+
+    def geometry(self, x):
+        q = torch.stack([x[:, :2].norm(dim=-1) - self.major, x[:, 2]], dim=-1)
+        return q.norm(dim=-1) - self.minor
+
+    def exact(self, p: np.ndarray) -> np.ndarray:
+        p = p.astype(np.float64)
+        q = np.stack([np.linalg.norm(p[:, :2], axis=-1) - self.major, p[:, 2]], axis=-1)
+        return np.linalg.norm(q, axis=-1) - self.minor
+
+    def gradient(self, p: np.ndarray) -> np.ndarray:
+        p = p.astype(np.float64)
+        rho = np.linalg.norm(p[:, :2], axis=-1, keepdims=True)
+        ring = np.concatenate([p[:, :2] / rho * self.major, np.zeros_like(rho)], axis=-1)
+        d = p - ring
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+class LaplaceDensity:
+    """VolSDF density sigma = Psi_beta(-sdf) / beta of an SDF (peak 1/beta inside, 1/(2 beta) on the surface)."""
+
+    kind = "density"
+
+    def __init__(self, sdf, beta):
+        self.sdf, self.beta = sdf, beta
+        self.aabb = sdf.aabb
+
+    def geometry(self, x):
+        s = self.sdf.geometry(x)
+        psi = torch.where(s >= 0, 0.5 * torch.exp(-s / self.beta), 1.0 - 0.5 * torch.exp(s / self.beta))
+        return psi / self.beta
+
+
+class NoSurface:
+    def __init__(self, kind, value):
+        self.kind, self.value = kind, value
+        self.aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+    def geometry(self, x):
+        return torch.full((x.shape[0],), self.value)
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def surface_samples(mesh: MeshData, per_face: int = 4, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    bary = rng.dirichlet([1.0, 1.0, 1.0], size=(mesh.num_faces, per_face))
+    tri = mesh.vertices[mesh.faces].astype(np.float64)
+    return np.einsum("fsk,fkd->fsd", bary, tri).reshape(-1, 3)
+
+
+def face_normals(mesh: MeshData) -> np.ndarray:
+    tri = mesh.vertices[mesh.faces].astype(np.float64)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def voxel_errors(mesh, exact, voxel):
+    """(mean vertex distance, mean face-point distance, max face-point distance) to the true surface, in voxels."""
+    dv = np.abs(exact(mesh.vertices)) / voxel
+    df = np.abs(exact(surface_samples(mesh))) / voxel
+    return float(dv.mean()), float(df.mean()), float(df.max())
+
+
+@pytest.fixture(scope="module")
+def sphere_mesh():
+    return marching_cubes_field(SphereSDF(), 64)
+
+
+# ---------------------------------------------------------------------------------------------- grid
+def test_chunked_grid_equals_one_shot_and_replaces_nonfinite():
+    def fn(x):
+        v = x.norm(dim=-1) - 0.5 + 0.1 * torch.sin(7 * x[:, 0]) * x[:, 1]
+        v[x[:, 0] > 0.9] = float("nan")
+        return v
+
+    aabb = torch.tensor([[-1.0, -0.7, -0.3], [1.0, 0.7, 0.3]])
+    one_stats, chunk_stats = {}, {}
+    one = sample_grid(fn, aabb, 40, outside=7.0, chunk_points=10 ** 9, stats=one_stats)
+    chunked = sample_grid(fn, aabb, 40, outside=7.0, chunk_points=333, stats=chunk_stats)  # rows inside a slice
+    slabs = sample_grid(fn, aabb, 40, outside=7.0, chunk_points=40 * 40 * 3)
+    assert one.dtype == np.float32 and one.shape == tuple(grid_spec(aabb, 40).shape)
+    assert np.array_equal(one, chunked) and np.array_equal(one, slabs)
+    assert one_stats["grid_nonfinite"] == chunk_stats["grid_nonfinite"] > 0
+    assert np.isfinite(one).all() and (one == 7.0).sum() >= one_stats["grid_nonfinite"]
+    # values sit exactly at origin + index * spacing
+    spec = grid_spec(aabb, 40)
+    i, j, k = 5, 11, 3
+    p = torch.tensor(spec.origin + np.array([i, j, k]) * spec.spacing, dtype=torch.float32)[None]
+    assert one[i, j, k] == np.float32(fn(p)[0])
+
+
+def test_noncubic_box_gives_cubic_voxels_covering_the_box():
+    aabb = torch.tensor([[0.0, 0.0, 0.0], [2.0, 1.0, 0.55]])
+    spec = grid_spec(aabb, 41)
+    assert np.allclose(spec.spacing, 0.05) and spec.shape == (41, 21, 12)
+    box = spec.box
+    assert (box[0] <= aabb.numpy()[0] + 1e-9).all() and (box[1] >= aabb.numpy()[1] - 1e-9).all()
+    assert ((box[1] - box[0]) - (aabb[1] - aabb[0]).numpy()).max() < 0.05  # grown by less than a voxel
+    explicit = grid_spec(aabb, (5, 6, 7))  # per-axis resolution used as given
+    assert explicit.shape == (5, 6, 7) and np.allclose(explicit.box, aabb.numpy())
+
+
+# ---------------------------------------------------------------------------------------------- marching cubes
+def test_sphere_sdf_mesh_accuracy_and_orientation(sphere_mesh):
+    field = SphereSDF()
+    mesh = sphere_mesh
+    voxel = mesh.stats["voxel_size"]
+    mean_v, mean_f, max_f = voxel_errors(mesh, field.exact, voxel)
+    print(f"sphere sdf 64^3: vertex {mean_v:.4f} vox, face points {mean_f:.4f} vox (max {max_f:.3f})")
+    assert mean_v < 0.05 and mean_f < 0.1 and max_f < 0.5
+    centroids = mesh.vertices[mesh.faces].mean(axis=1)
+    assert (np.einsum("ij,ij->i", face_normals(mesh), centroids) > 0).all()  # every face points outwards
+    assert signed_volume(mesh.vertices, mesh.faces) == pytest.approx(4 / 3 * math.pi * 0.5 ** 3, rel=0.01)
+    assert is_watertight(mesh.faces)
+
+
+def test_torus_in_noncubic_box():
+    field = TorusSDF()
+    mesh = marching_cubes_field(field, 80)
+    voxel = mesh.stats["voxel_size"]
+    assert mesh.stats["grid_shape"] == [80, 80, 41]
+    mean_v, mean_f, max_f = voxel_errors(mesh, field.exact, voxel)
+    print(f"torus sdf 80: vertex {mean_v:.4f} vox, face points {mean_f:.4f} vox (max {max_f:.3f})")
+    assert mean_v < 0.05 and mean_f < 0.1 and max_f < 0.5
+    centroids = mesh.vertices[mesh.faces].mean(axis=1)
+    assert (np.einsum("ij,ij->i", face_normals(mesh), field.gradient(centroids)) > 0).all()
+    exact_volume = 2 * math.pi ** 2 * field.major * field.minor ** 2
+    assert signed_volume(mesh.vertices, mesh.faces) == pytest.approx(exact_volume, rel=0.01)
+
+
+def test_surface_cut_by_box_is_closed():
+    field = SphereSDF(radius=0.5, center=(0.8, 0.0, 0.0))  # pokes out of the +x face of the box
+    mesh = marching_cubes_field(field, 48)
+    assert is_watertight(mesh.faces) and signed_volume(mesh.vertices, mesh.faces) > 0
+    assert mesh.vertices[:, 0].max() <= 1.0 + 1e-5
+
+
+@pytest.mark.parametrize("beta_voxels", [0.2, 0.5, 2.0])
+def test_density_field_surface_at_sdf_zero(beta_voxels):
+    """Level rule min(ln2/voxel, peak/2): sharp densities put the surface < 0.27 voxel outside sdf = 0,
+    soft ones (beta >= 0.72 voxel) exactly at sdf = 0 (half the Laplace peak)."""
+    sdf = SphereSDF()
+    res = 64
+    voxel = 2.0 / (res - 1)
+    field = LaplaceDensity(sdf, beta_voxels * voxel)
+    mesh = marching_cubes_field(field, res)
+    signed = sdf.exact(surface_samples(mesh)) / voxel
+    print(f"density beta={beta_voxels} vox: level {mesh.stats['mc_level']:.3f}, "
+          f"mean sdf {signed.mean():+.4f} vox, mean |sdf| {np.abs(signed).mean():.4f} vox")
+    assert abs(signed.mean()) < 0.3 and np.abs(signed).max() < 0.7
+    if beta_voxels >= 1.0:
+        assert abs(signed.mean()) < 0.1
+    centroids = mesh.vertices[mesh.faces].mean(axis=1)
+    assert (np.einsum("ij,ij->i", face_normals(mesh), centroids) > 0).all()
+    assert signed_volume(mesh.vertices, mesh.faces) > 0
+
+
+def test_explicit_density_level_and_exact_level_ties():
+    sdf = SphereSDF()
+    field = LaplaceDensity(sdf, 0.01)
+    mesh = marching_cubes_field(field, 48, level=50.0)  # 1/(2 beta) = 50: the zero level set
+    voxel = mesh.stats["voxel_size"]
+    assert abs(sdf.exact(surface_samples(mesh)).mean()) / voxel < 0.1
+    # a quantised field where many grid values equal the level: nudged, no zero-area faces, still closed
+    q = SphereSDF()
+    q.geometry = lambda x: torch.round((x.norm(dim=-1) - 0.5) * 20) / 20
+    mq = marching_cubes_field(q, 40)
+    tri = mq.vertices[mq.faces].astype(np.float64)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=-1)
+    assert (area > 0).all() and is_watertight(mq.faces)
+
+
+@pytest.mark.parametrize("field", [NoSurface("sdf", 1.0), NoSurface("sdf", -1.0), NoSurface("density", 0.0),
+                                   SphereSDF(radius=0.3, center=(5.0, 0.0, 0.0))])
+def test_no_surface_raises(field):
+    with pytest.raises(BadInputError, match="no surface inside its box"):
+        marching_cubes_field(field, 16)
+
+
+# ---------------------------------------------------------------------------------------------- cleanup / decimation
+def test_clean_removes_junk(sphere_mesh):
+    v, f = sphere_mesh.vertices, sphere_mesh.faces
+    speck = np.array([[0.9, 0.9, 0.9], [0.91, 0.9, 0.9], [0.9, 0.91, 0.9]], dtype=np.float32)
+    nan_v = np.array([[np.nan, 0, 0]], dtype=np.float32)
+    v2 = np.concatenate([v, speck, nan_v, np.zeros((5, 3), np.float32)])
+    n = len(v)
+    f2 = np.concatenate([f, f[:10], [[n, n + 1, n + 2], [0, 0, 1], [n + 3, 0, 1]]])
+    cleaned = clean_mesh(MeshData(v2, f2))
+    assert cleaned.num_faces == sphere_mesh.num_faces and cleaned.num_vertices == sphere_mesh.num_vertices
+    assert cleaned.stats["clean_components_removed"] == 1 and np.isfinite(cleaned.vertices).all()
+    assert is_watertight(cleaned.faces)
+
+
+def test_decimate_reaches_budget_and_stays_close(sphere_mesh):
+    field = SphereSDF()
+    voxel = sphere_mesh.stats["voxel_size"]
+    out = decimate(clean_mesh(sphere_mesh), 2000)
+    assert 1800 <= out.num_faces <= 2000 and out.stats["decimate_budget_reached"]
+    mean_v, mean_f, max_f = voxel_errors(out, field.exact, voxel)
+    print(f"decimated {sphere_mesh.num_faces}->{out.num_faces}: vertex {mean_v:.3f} vox, face {mean_f:.3f} vox")
+    assert mean_v < 0.25 and mean_f < 0.5
+    assert is_watertight(out.faces) and signed_volume(out.vertices, out.faces) > 0
+
+
+@pytest.mark.parametrize("budget", [0, 3, -5, 100.0, True, "1000"])
+def test_bad_face_budget(sphere_mesh, budget):
+    with pytest.raises(BadInputError, match="face budget must be at least"):
+        decimate(sphere_mesh, budget)
+
+
+# ---------------------------------------------------------------------------------------------- visibility
+def test_cull_keeps_front_removes_back():
+    mesh = decimate(marching_cubes_field(SphereSDF(), 48), 4000)
+    poses = torch.stack([look_at(torch.tensor([5.0 * math.cos(a), 5.0 * math.sin(a), 0.3]), torch.zeros(3),
+                                 torch.tensor([0.0, 0.0, 1.0])) for a in (-0.1, 0.0, 0.1)]).float()
+    f = 0.5 * 200 / math.tan(math.radians(10))
+    cams = Cameras(poses, f, f, 100.0, 75.0, 200, 150)
+    out = cull_unseen_faces(mesh, cams)
+    frac = out.stats["culled_faces"] / mesh.num_faces
+    print(f"culled {out.stats['culled_faces']} of {mesh.num_faces} ({frac:.1%})")
+    assert 0.4 < frac < 0.6
+    # every face clearly facing some camera is kept (compare face centroids)
+    centroids = mesh.vertices[mesh.faces].mean(axis=1)
+    normals = face_normals(mesh)
+    facing = np.zeros(mesh.num_faces, dtype=bool)
+    for c in cams.centers.numpy():
+        to_cam = c - centroids
+        facing |= np.einsum("ij,ij->i", normals, to_cam / np.linalg.norm(to_cam, axis=-1, keepdims=True)) > 0.05
+    kept = {tuple(np.round(c, 5)) for c in out.vertices[out.faces].mean(axis=1)}
+    assert all(tuple(np.round(c, 5)) in kept for c in centroids[facing])
+    assert out.faces.max() < out.num_vertices == len(np.unique(out.faces))  # no unreferenced vertices
+    away = Cameras(look_at(torch.tensor([5.0, 0, 0]), torch.tensor([10.0, 0, 0]), torch.tensor([0, 0, 1.0])).float(),
+                   f, f, 100.0, 75.0, 200, 150)
+    with pytest.raises(BadInputError, match="no training camera sees"):
+        cull_unseen_faces(mesh, away)
+
+
+# ---------------------------------------------------------------------------------------------- unwrap
+def uv_overlap_fraction(uvs, faces, n=256):
+    """Fraction of covered sample points (n x n texel centres) covered by more than one uv triangle."""
+    count = np.zeros((n, n), dtype=np.int32)
+    tri = uvs[faces].astype(np.float64) * n - 0.5  # in texel-centre index units
+    for t in tri:
+        lo = np.clip(np.ceil(t.min(axis=0)).astype(int), 0, n - 1)
+        hi = np.clip(np.floor(t.max(axis=0)).astype(int), 0, n - 1)
+        if (hi < lo).any():
+            continue
+        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="xy")
+        p = np.stack([xs.ravel(), ys.ravel()], axis=-1).astype(np.float64)
+        a, b, c = t
+        d = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        w1 = ((p[:, 0] - a[0]) * (c[1] - a[1]) - (p[:, 1] - a[1]) * (c[0] - a[0])) / d
+        w2 = ((b[0] - a[0]) * (p[:, 1] - a[1]) - (b[1] - a[1]) * (p[:, 0] - a[0])) / d
+        inside = (w1 >= 0) & (w2 >= 0) & (w1 + w2 <= 1)
+        count[ys.ravel()[inside], xs.ravel()[inside]] += 1
+    covered = count > 0
+    return float((count > 1).sum() / max(1, covered.sum())), float(covered.mean())
+
+
+def test_unwrap_uvs_valid(sphere_mesh):
+    mesh = decimate(sphere_mesh, 1500)
+    out = unwrap(mesh, resolution=256)
+    assert out.uvs is not None and out.uvs.dtype == np.float32 and np.isfinite(out.uvs).all()
+    assert out.uvs.min() >= 0.0 and out.uvs.max() <= 1.0
+    assert out.num_faces == mesh.num_faces and out.num_vertices >= mesh.num_vertices
+    assert np.array_equal(out.vertices[out.faces], mesh.vertices[mesh.faces])  # same faces, same order
+    areas = uv_face_areas(out.uvs, out.faces)
+    assert (np.abs(areas) > 1e-9).all() and np.abs(areas).sum() <= 1.0
+    overlap, covered = uv_overlap_fraction(out.uvs, out.faces)
+    print(f"unwrap: {out.stats['uv_charts']} charts, atlas {out.stats['uv_atlas_width']}x"
+          f"{out.stats['uv_atlas_height']}, utilization {out.stats['uv_utilization']:.2f}, overlap {overlap:.4f}")
+    assert overlap < 0.01 and covered > 0.3
+    assert out.stats["uv_padding_texels"] >= 2.0 and out.stats["uv_attempts"] == ["ok"]
+
+
+def test_unwrap_refuses_empty_and_huge(sphere_mesh):
+    with pytest.raises(BadInputError, match="empty"):
+        unwrap(MeshData(np.zeros((0, 3)), np.zeros((0, 3))))
+    with pytest.raises(BadInputError, match="lower --face-budget"):
+        unwrap(sphere_mesh, max_faces=1000)
+
+
+@pytest.mark.parametrize("fault,what", [("abort", "crashed"), ("hang", "timed out")])
+def test_unwrap_child_crash_is_contained(monkeypatch, fault, what):
+    tiny = MeshData(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32),
+                    np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], np.int32))
+    monkeypatch.setenv(CRASH_HOOK_ENV, fault)
+    with pytest.raises(BadInputError, match=f"UV unwrap {what} on 4 faces.*lower --face-budget"):
+        unwrap(tiny, timeout_s=1.5)
+    monkeypatch.delenv(CRASH_HOOK_ENV)
+    assert unwrap(tiny, resolution=64).uvs.shape[0] >= 4  # this process is still fine
+
+
+# ---------------------------------------------------------------------------------------------- whole stage
+def test_extract_mesh_end_to_end():
+    cams = Cameras.orbit([0, 0, 0], 3.0, 6, width=96, height=96, elevation_deg=20.0)
+    mesh = extract_mesh(SphereSDF(), cams, grid_resolution=48, face_budget=1500, texture_resolution=256)
+    s = mesh.stats
+    assert s["faces_marching_cubes"] >= s["faces_after_clean"] >= s["faces_after_decimation"] >= s["faces_final"]
+    assert s["faces_after_decimation"] <= 1500 and s["faces_final"] == mesh.num_faces
+    assert s["faces_final"] + s["culled_faces"] == s["faces_after_decimation"] and s["culled_faces"] > 0
+    assert s["chart_count"] >= 1 and mesh.uvs is not None
+    for step in ("marching_cubes", "clean", "decimate", "cull", "unwrap", "total"):
+        assert s[f"seconds_{step}"] >= 0
