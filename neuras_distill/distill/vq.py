@@ -10,7 +10,8 @@ Owns: :class:`VectorQuantizer`. Decisions (see ``shared/reference/stability-and-
 - Loss ``|sg[z] - e|^2 + beta |z - sg[e]|^2`` (means over elements); the codebook is a gradient-trained parameter.
 - Usage is tracked per code as an EMA of assignment counts and as "steps since last used"; codes unused for
   ``dead_after`` training steps are replaced by random current inputs (dead-code reset).
-- ``init_from(z)``: k-means (10 Lloyd iterations, empty clusters keep their centre) on a sample of ``z``.
+- ``init_from(z)``: k-means++ seeding then k-means (10 Lloyd iterations, empty clusters keep their centre) on a
+  sample of ``z``.
 """
 
 from __future__ import annotations
@@ -106,7 +107,7 @@ class VectorQuantizer(nn.Module):
                   generator: torch.Generator | None = None) -> None:
         """k-means initialisation of the codebook from z (M, D) (a random sample of at most max_samples rows).
 
-        Starts from distinct random rows (with replacement when M < K, plus tiny jitter so codes differ),
+        Seeds with k-means++ on at most 16*K rows (random rows with replacement when M < K, plus tiny jitter so codes differ),
         then ``iters`` Lloyd iterations; empty clusters keep their previous centre.
         """
         z = z.detach().float()
@@ -116,7 +117,7 @@ class VectorQuantizer(nn.Module):
             z = z[torch.randperm(z.shape[0], generator=generator)[:max_samples]]
         m, k = z.shape[0], self.num_codes
         if m >= k:
-            centres = z[torch.randperm(m, generator=generator)[:k]].clone()
+            centres = self._kmeans_pp(z[torch.randperm(m, generator=generator)[:16 * k]], k, generator)
         else:
             centres = z[torch.randint(0, m, (k,), generator=generator)].clone()
             scale = z.std(dim=0, keepdim=True).clamp_min(1e-6) * 1e-3
@@ -131,6 +132,23 @@ class VectorQuantizer(nn.Module):
         self.ema_usage.fill_(0.0)
         self.steps_unused.zero_()
         self.initialized.fill_(True)
+
+    @staticmethod
+    def _kmeans_pp(z: torch.Tensor, k: int, generator: torch.Generator | None) -> torch.Tensor:
+        """k-means++ seeding: k rows of z (M >= k, D), each drawn with probability ~ squared distance."""
+        centres = torch.empty(k, z.shape[1], dtype=z.dtype)
+        first = int(torch.randint(0, z.shape[0], (1,), generator=generator))
+        centres[0] = z[first]
+        d2 = ((z - centres[0]) ** 2).sum(1)
+        for c in range(1, k):
+            total = float(d2.sum())
+            if total <= 0:
+                pick = int(torch.randint(0, z.shape[0], (1,), generator=generator))
+            else:
+                pick = int(torch.multinomial(d2 / total, 1, generator=generator))
+            centres[c] = z[pick]
+            d2 = torch.minimum(d2, ((z - centres[c]) ** 2).sum(1))
+        return centres
 
     # ------------------------------------------------------------------ stats and baking
     @staticmethod

@@ -127,15 +127,32 @@ class AnalyticSDFField:
         return SDFToDensityField(self, beta)
 
     def default_cameras(self, n: int, width: int = 512, height: int = 512):
-        """An orbit (z up, elevations 15..50 degrees) framing the aabb."""
-        from ..render.cameras import Cameras
+        """An orbit (z up, elevations 15..50 degrees) framing the aabb (see :func:`orbit_framing`)."""
+        return orbit_framing(self.aabb, n, width, height)
 
-        center = 0.5 * (self.aabb[0] + self.aabb[1])
-        radius = 0.5 * float((self.aabb[1] - self.aabb[0]).norm())
-        fov = 40.0
-        dist = 1.1 * radius / math.sin(math.radians(fov) / 2)
-        return Cameras.orbit(center.tolist(), dist, n, width=width, height=height, fov_deg=fov,
-                             elevation_deg=(15.0, 50.0))
+
+ORBIT_FOV_DEG = 40.0
+ORBIT_ELEVATION_DEG = (15.0, 50.0)
+ORBIT_PADDING = 1.0
+
+
+def orbit_framing(aabb: torch.Tensor, n: int, width: int = 512, height: int = 512, *,
+                  fov_deg: float = ORBIT_FOV_DEG, elevation_deg=ORBIT_ELEVATION_DEG, padding: float = ORBIT_PADDING):
+    """``n`` cameras on a helix orbit (z up) around the aabb centre that keep the whole box in view.
+
+    The distance is ``padding * r / sin(fov / 2)`` with r the radius of the sphere around the aabb (so the
+    sphere fits the narrower field of view), elevations vary between ``elevation_deg`` over the orbit.
+    """
+    from ..render.cameras import Cameras
+
+    aabb = torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3)
+    center = 0.5 * (aabb[0] + aabb[1])
+    radius = 0.5 * float((aabb[1] - aabb[0]).norm())
+    half_h = math.radians(fov_deg) / 2  # Cameras.orbit's fov is horizontal
+    fov_min = 2 * min(half_h, math.atan(math.tan(half_h) * height / width))
+    dist = padding * radius / math.sin(0.5 * fov_min)
+    return Cameras.orbit(center.tolist(), dist, n, width=width, height=height, fov_deg=fov_deg,
+                         elevation_deg=elevation_deg)
 
 
 def _box_around(center: torch.Tensor, half: torch.Tensor, margin: float) -> torch.Tensor:

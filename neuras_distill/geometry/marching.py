@@ -4,9 +4,10 @@ Owns the choice of iso-level, padding, orientation and the index-to-world mappin
 
 * The field is sampled with :func:`neuras_distill.geometry.grid.sample_grid` (one global lattice, chunked).
   NaN/Inf samples become the "outside" value (large positive SDF / zero density).
-* The grid is padded by one voxel of "outside" on every side, so surfaces cut by the box are closed
-  (watertight) instead of open.
-* SDF fields: level 0. Density fields: the adaptive level of :func:`density_level` (override with ``level``).
+* The grid is padded by one voxel of a value far on the "outside" side of the level, so surfaces cut by the
+  box are closed (watertight) by a cap lying on the box face, instead of open.
+* SDF fields: level 0. Density fields: the adaptive level of :func:`density_level` (override with ``level``),
+  meshed in log space (see :func:`marching_cubes_grid`).
 * The level is nudged off values that occur exactly in the grid (exact ties give zero-area triangles and
   holes, scikit-image#8116).
 * Orientation: faces are counter-clockwise seen from outside (normals towards increasing SDF / decreasing
@@ -71,8 +72,15 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
 
 
 def marching_cubes_grid(grid: np.ndarray, origin: Sequence[float], spacing: Sequence[float], kind: str,
-                        level: float, outside: float) -> MeshData:
-    """Marching cubes on a sampled grid (R0, R1, R2) -> MeshData in world units (see module docstring)."""
+                        level: float) -> MeshData:
+    """Marching cubes on a sampled grid (R0, R1, R2) -> MeshData in world units (see module docstring).
+
+    ``grid[i, j, k]`` is the field at ``origin + (i, j, k) * spacing``. Density grids are meshed in log space
+    (``log(sigma + 1e-3 * level)`` at ``log(1.001 * level)``): the crossing is then exact for exponential
+    density tails (VolSDF/Laplace, trunc_exp NeRF densities) instead of biased outwards by linear interpolation
+    (measured on a Laplace sphere with beta = 0.2 voxel: +0.41 voxel linear, +0.23 voxel log).
+    The padding value is far beyond the level, so surfaces cut by the box are capped on the box face.
+    """
     lo, hi = float(grid.min()), float(grid.max())
     if not (lo < level < hi):
         what = ("everywhere outside the surface (no negative SDF values)" if kind == "sdf" and lo >= level else
@@ -83,13 +91,22 @@ def marching_cubes_grid(grid: np.ndarray, origin: Sequence[float], spacing: Sequ
             f"the field has no surface inside its box: it is {what}. Check that the aabb encloses the object "
             "(and is not entirely inside it), that the field kind ('sdf' or 'density') is right, "
             "or pass an explicit density level.")
-    level = nudge_level(grid, level)
-    padded = np.pad(grid, 1, mode="constant", constant_values=np.float32(outside))
+    if kind == "density":
+        eps = 1e-3 * level
+        values = np.log(np.maximum(grid, 0.0) + np.float32(eps)).astype(np.float32)
+        mc_level = float(np.log(level + eps))
+        outward = -1.0  # outside = lower values
+    else:
+        values, mc_level, outward = grid, float(level), 1.0
+    vlo, vhi = float(values.min()), float(values.max())
+    mc_level = nudge_level(values, mc_level)
+    pad = mc_level + outward * min(1e4 * (vhi - vlo + abs(mc_level) + 1.0), 1e30)
+    padded = np.pad(values, 1, mode="constant", constant_values=np.float32(pad))
     spacing = np.asarray(spacing, dtype=np.float64)
     origin = np.asarray(origin, dtype=np.float64) - spacing
     gradient_direction = "descent" if kind == "sdf" else "ascent"
     try:
-        verts, faces, _, _ = measure.marching_cubes(padded, level=level, spacing=tuple(spacing),
+        verts, faces, _, _ = measure.marching_cubes(padded, level=mc_level, spacing=tuple(spacing),
                                                     gradient_direction=gradient_direction,
                                                     allow_degenerate=False)
     except (ValueError, RuntimeError) as exc:
@@ -136,7 +153,7 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
             level = density_level(grid, step)
             stats["mc_level_rule"] = f"min(ln2/step, 0.5*max) with step={step:.6g}"
     t0 = time.perf_counter()
-    mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, float(level), outside)
+    mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, float(level))
     stats.update(mc_level=float(level), mc_faces=mesh.num_faces, mc_vertices=mesh.num_vertices,
                  mc_seconds=time.perf_counter() - t0, voxel_size=float(spec.spacing.max()))
     mesh.stats = stats

@@ -94,19 +94,21 @@ def _run_in_child(vertices: np.ndarray, faces: np.ndarray, options: dict, timeou
                        name="neuras-xatlas")
     proc.start()
     send_conn.close()
+    status, result = "timeout", None
     try:
         ready = mp_wait([recv_conn, proc.sentinel], timeout=timeout_s)
         if recv_conn in ready:
             try:
-                return "ok", recv_conn.recv()
+                status, result = "ok", recv_conn.recv()
             except (EOFError, OSError):
-                return "crashed", None
-        if proc.sentinel in ready:
-            return "crashed", None
-        return "timeout", None
+                status = "crashed"
+        elif proc.sentinel in ready:
+            status = "crashed"
+        return status, result
     finally:
         recv_conn.close()
-        proc.join(timeout=2.0)
+        if status == "ok":
+            proc.join(timeout=5.0)  # it exits right after sending
         if proc.is_alive():
             proc.terminate()
             proc.join(timeout=2.0)
@@ -177,9 +179,10 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000
         if status == "ok":
             break
     if result is None:
-        what = "crashed" if attempts[-1] == "crashed" else f"timed out (limit {timeout_s:g} s)"
-        raise BadInputError(f"UV unwrap {what} on {n_faces} faces (twice, the second time with jittered vertices); "
-                            f"lower --face-budget (e.g. to {max(1000, n_faces // 2)}) or raise the unwrap time limit")
+        what = "crashed" if attempts[-1] == "crashed" else "timed out"
+        raise BadInputError(f"UV unwrap {what} on {n_faces} faces (tried twice, the second time with jittered "
+                            f"vertices; {timeout_s:g} s limit per try); lower --face-budget "
+                            f"(e.g. to {max(1000, n_faces // 2)}) or raise the unwrap time limit")
     vmapping, indices, uv = result["vmapping"], result["indices"], result["uvs"].astype(np.float64)
     scale = 1.0 / max(result["width"], result["height"])
     uv = uv * np.array([result["width"], result["height"]], dtype=np.float64) * scale

@@ -48,7 +48,7 @@ class OccupancyGrid:
     @property
     def fraction(self) -> float:
         """Fraction of occupied cells."""
-        return float(self._flat.float().mean())
+        return float(self.occupied.float().mean())
 
     def __repr__(self) -> str:
         return f"OccupancyGrid({tuple(self.occupied.shape)}, occupied={self.fraction:.3%})"
@@ -85,7 +85,7 @@ class OccupancyGrid:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_field(cls, field, resolution: int = 128, *, margin: float | None = None,
-                   threshold: float = 0.01, samples_per_cell: int = 4, step: float | None = None,
+                   threshold: float = 0.01, samples_per_cell: int = 2, step: float | None = None,
                    chunk: int = 2**18, seed: int = 0) -> "OccupancyGrid":
         """Build the grid from ``field`` (kind ``"sdf"`` or ``"density"``).
 

@@ -1,0 +1,230 @@
+"""The bundle: what plays (mesh with UVs, feature textures, generated fragment shader, manifest).
+
+Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature_nbytes`. On disk::
+
+    manifest.json        format, sizes, model settings, sha256 of every other file
+    mesh.npz             float32 vertices (V,3), float32 uvs (V,2), int32 faces (F,3)
+    feature_index.png    16-bit grayscale PNG of the (H, W) code indices (row 0 = v = 0, i.e. the image
+                         looks upside down in a viewer), lossless
+    codebook.npy         float32 (K, ceil(D/4), 4), zero padded
+    shader.frag          the generated fragment shader
+    shader.vert          only when the bundle carries a vertex shader
+
+Textures are named by the sampler they bind to: ``u_index`` (uint16 (H, W)) and ``u_codebook``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from neuras_distill.bake.glsl import generate_fragment_shader
+from neuras_distill.errors import BadInputError
+from neuras_distill.geometry.mesh import MeshData
+
+FORMAT = "neuras-bundle"
+FORMAT_VERSION = 1
+MAX_CODES = 65535
+FILES = ("manifest.json", "mesh.npz", "feature_index.png", "codebook.npy", "shader.frag")
+
+
+def float16_feature_nbytes(height: int, width: int, dim: int) -> int:
+    """Bytes of the same atlas stored unquantized as float16: H * W * D * 2."""
+    return int(height) * int(width) * int(dim) * 2
+
+
+@dataclass
+class Bundle:
+    """A baked, playable result.
+
+    Attributes:
+        mesh: MeshData with uvs.
+        textures: {"u_index": uint16 (H, W), "u_codebook": float32 (K, C4, 4)}.
+        fragment_shader: GLSL 330 source (``bake/glsl.py``).
+        background_color: (3,) float32 clear colour.
+        manifest: dict (format, sizes, model settings, ...; ``save`` adds file hashes).
+        vertex_shader: optional GLSL source saved as shader.vert (the playback stage owns it).
+    """
+
+    mesh: MeshData
+    textures: dict
+    fragment_shader: str
+    background_color: np.ndarray
+    manifest: dict = field(default_factory=dict)
+    vertex_shader: str | None = None
+
+    def __post_init__(self) -> None:
+        self.background_color = np.asarray(self.background_color, dtype=np.float32).reshape(3)
+
+    # ------------------------------------------------------------------ encoding
+    def _encode(self) -> dict[str, bytes]:
+        files: dict[str, bytes] = {}
+        buf = io.BytesIO()
+        m = self.mesh
+        np.savez_compressed(buf, vertices=m.vertices.astype(np.float32), uvs=m.uvs.astype(np.float32),
+                            faces=m.faces.astype(np.int32))
+        files["mesh.npz"] = buf.getvalue()
+        files["feature_index.png"] = _encode_png16(self.textures["u_index"])
+        buf = io.BytesIO()
+        np.save(buf, np.ascontiguousarray(self.textures["u_codebook"], dtype=np.float32), allow_pickle=False)
+        files["codebook.npy"] = buf.getvalue()
+        files["shader.frag"] = self.fragment_shader.encode("utf-8")
+        if self.vertex_shader is not None:
+            files["shader.vert"] = self.vertex_shader.encode("utf-8")
+        manifest = dict(self.manifest)
+        manifest.update(format=FORMAT, format_version=FORMAT_VERSION,
+                        background_color=[float(x) for x in self.background_color],
+                        files={k: {"bytes": len(v), "sha256": hashlib.sha256(v).hexdigest()} for k, v in files.items()})
+        files["manifest.json"] = json.dumps(manifest, indent=2, sort_keys=True).encode("utf-8")
+        return files
+
+    def save(self, directory) -> Path:
+        """Write the bundle files into ``directory`` (created if needed). Returns the directory."""
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        for name, data in self._encode().items():
+            (d / name).write_bytes(data)
+        return d
+
+    def nbytes_on_disk(self) -> int:
+        """Total bytes the saved files take (computed by encoding, same bytes as ``save`` writes)."""
+        return sum(len(v) for v in self._encode().values())
+
+    def feature_nbytes(self) -> int:
+        """Bytes of the feature data on disk: index PNG + codebook.npy."""
+        files = self._encode()
+        return len(files["feature_index.png"]) + len(files["codebook.npy"])
+
+    def float16_nbytes(self) -> int:
+        """Bytes the same atlas would take unquantized in float16 (H * W * D * 2), for the compression ratio."""
+        h, w = self.textures["u_index"].shape
+        return float16_feature_nbytes(h, w, int(self.manifest.get("feature_dim", 4 * self.textures["u_codebook"].shape[1])))
+
+
+def _encode_png16(index: np.ndarray) -> bytes:
+    a = np.ascontiguousarray(index)
+    if a.dtype != np.uint16 or a.ndim != 2:
+        raise ValueError(f"u_index must be a uint16 (H, W) array, got {a.dtype} {a.shape}")
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, format="PNG", compress_level=9)
+    data = buf.getvalue()
+    if not np.array_equal(_decode_png16(data), a):        # lossless round trip, checked once per encode
+        raise RuntimeError("16-bit PNG round trip of the index map is not exact")
+    return data
+
+
+def _decode_png16(data: bytes) -> np.ndarray:
+    with Image.open(io.BytesIO(data)) as im:
+        if im.mode not in ("I;16", "I;16B", "I;16L", "I"):
+            raise ValueError(f"feature_index.png is mode {im.mode}, not 16-bit grayscale")
+        a = np.array(im)
+    if a.dtype != np.uint16:
+        if a.min() < 0 or a.max() > 65535:
+            raise ValueError("feature_index.png values outside 16 bits")
+        a = a.astype(np.uint16)
+    return a
+
+
+def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = None,
+         vertex_shader: str | None = None) -> Bundle:
+    """Turn a trained ``NeuralTextureModel`` and its mesh into a :class:`Bundle`.
+
+    Codes never referenced by the index map are dropped (``manifest["num_codes"]`` is the kept count,
+    ``num_codes_trained`` the codebook size during training).
+    """
+    if mesh.uvs is None:
+        raise BadInputError("bake: the mesh has no UVs; unwrap it before baking")
+    index, codebook = model.baked_features()
+    k, dim = codebook.shape
+    if k > MAX_CODES:
+        raise BadInputError(f"bake: {k} codes do not fit a uint16 index texture (at most {MAX_CODES})")
+    c4 = (dim + 3) // 4
+    cb = np.zeros((k, c4 * 4), np.float32)
+    cb[:, :dim] = codebook
+    manifest = {
+        "texture_width": int(model.tex_width), "texture_height": int(model.tex_height),
+        "feature_dim": int(dim), "num_codes": int(k), "num_codes_trained": int(model.num_codes),
+        "use_vq": bool(model.use_vq), "use_viewdir": bool(model.use_viewdir),
+        "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
+        "mesh_vertices": int(mesh.num_vertices), "mesh_faces": int(mesh.num_faces),
+        "float16_feature_bytes": float16_feature_nbytes(model.tex_height, model.tex_width, dim),
+    }
+    manifest.update(extra_manifest or {})
+    return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs),
+                  textures={"u_index": index.astype(np.uint16), "u_codebook": cb.reshape(k, c4, 4)},
+                  fragment_shader=generate_fragment_shader(model), background_color=background_color,
+                  manifest=manifest, vertex_shader=vertex_shader)
+
+
+def load_bundle(directory) -> Bundle:
+    """Read and validate a saved bundle. Raises BadInputError naming the missing or corrupt file."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise BadInputError(f"bundle folder {d} does not exist")
+    missing = [f for f in FILES if not (d / f).is_file()]
+    if missing:
+        raise BadInputError(f"bundle {d} is missing {', '.join(missing)}")
+    try:
+        manifest = json.loads((d / "manifest.json").read_text("utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise BadInputError(f"bundle {d}: manifest.json is not valid JSON ({exc})") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise BadInputError(f"bundle {d}: manifest.json is not a {FORMAT} manifest")
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise BadInputError(f"bundle {d}: format version {manifest.get('format_version')} is not supported "
+                            f"(this version reads {FORMAT_VERSION})")
+    raw = {}
+    for name, info in (manifest.get("files") or {}).items():
+        p = d / name
+        if not p.is_file():
+            raise BadInputError(f"bundle {d} is missing {name}")
+        raw[name] = p.read_bytes()
+        if hashlib.sha256(raw[name]).hexdigest() != info.get("sha256"):
+            raise BadInputError(f"bundle {d}: {name} is corrupt (checksum differs from manifest.json)")
+    for name in FILES[1:]:
+        if name not in raw:
+            raise BadInputError(f"bundle {d}: manifest.json does not list {name}")
+
+    def corrupt(name, exc):
+        return BadInputError(f"bundle {d}: {name} is corrupt ({exc})")
+
+    try:
+        with np.load(io.BytesIO(raw["mesh.npz"]), allow_pickle=False) as z:
+            mesh = MeshData(z["vertices"], z["faces"], z["uvs"])
+    except Exception as exc:  # noqa: BLE001
+        raise corrupt("mesh.npz", exc) from exc
+    try:
+        index = _decode_png16(raw["feature_index.png"])
+    except Exception as exc:  # noqa: BLE001
+        raise corrupt("feature_index.png", exc) from exc
+    try:
+        codebook = np.load(io.BytesIO(raw["codebook.npy"]), allow_pickle=False)
+    except Exception as exc:  # noqa: BLE001
+        raise corrupt("codebook.npy", exc) from exc
+    h, w = manifest.get("texture_height"), manifest.get("texture_width")
+    if index.shape != (h, w):
+        raise BadInputError(f"bundle {d}: feature_index.png is {index.shape}, manifest says {(h, w)}")
+    if codebook.dtype != np.float32 or codebook.ndim != 3 or codebook.shape[2] != 4 \
+            or codebook.shape[0] != manifest.get("num_codes"):
+        raise BadInputError(f"bundle {d}: codebook.npy is {codebook.dtype} {codebook.shape}, expected float32 "
+                            f"({manifest.get('num_codes')}, C4, 4)")
+    if index.size and int(index.max()) >= codebook.shape[0]:
+        raise BadInputError(f"bundle {d}: feature_index.png refers to code {int(index.max())} but the codebook "
+                            f"has {codebook.shape[0]}")
+    if mesh.faces.size and (mesh.faces.min() < 0 or mesh.faces.max() >= mesh.num_vertices):
+        raise BadInputError(f"bundle {d}: mesh.npz faces index missing vertices")
+    try:
+        frag = raw["shader.frag"].decode("utf-8")
+        vert = raw["shader.vert"].decode("utf-8") if "shader.vert" in raw else None
+    except UnicodeDecodeError as exc:
+        raise corrupt("shader", exc) from exc
+    bg = manifest.get("background_color")
+    manifest = {k: v for k, v in manifest.items() if k not in ("format", "format_version", "files", "background_color")}
+    return Bundle(mesh=mesh, textures={"u_index": index, "u_codebook": codebook}, fragment_shader=frag,
+                  background_color=np.asarray(bg, np.float32), manifest=manifest, vertex_shader=vert)

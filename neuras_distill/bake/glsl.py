@@ -1,0 +1,134 @@
+"""Generation of the fragment shader that plays a :class:`NeuralTextureModel` (GLSL 330 core).
+
+Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward pass:
+
+- bilinear corners exactly as ``distill/texture.py`` (x = u*W - 0.5, floor, clamped corners, weights
+  (1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy), blended in the order c00, c10, c01, c11;
+- ``u_index`` (R16UI, H x W): code index per texel, read with ``texelFetch(u_index, ivec2(i, j), 0)``;
+- ``u_codebook`` (RGBA32F, width ceil(D/4), height K): ``texelFetch(u_codebook, ivec2(c, k), 0)`` holds
+  features 4c..4c+3 of code k (zero padded);
+- the MLP unrolled as ``mat4 * vec4`` blocks with the weights as float literals (9 significant digits, so every
+  literal is exactly the float32 weight); all-zero blocks are skipped; ReLU = max(x, 0), sigmoid = 1/(1+exp(-x));
+- the view direction ``normalize(v_world - u_cam_pos)`` only when the model uses it (otherwise the shader
+  declares no ``u_cam_pos`` at all).
+
+Unrolled mat4/vec4 arithmetic compiles in well under a second on Mesa llvmpipe and vectorises there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def glsl_float(x: float) -> str:
+    """A GLSL float literal that parses to exactly float32(x)."""
+    v = float(np.float32(x))
+    if not math.isfinite(v):
+        raise ValueError(f"cannot bake a non-finite weight ({v}) into GLSL")
+    s = f"{v:.9g}"
+    if "." not in s and "e" not in s and "n" not in s:
+        s += ".0"
+    return s
+
+
+def _mat4(block: np.ndarray) -> str:
+    """(4 out, 4 in) block -> GLSL mat4 (column-major constructor), so that mat4 * v == block @ v."""
+    return "mat4(" + ", ".join(glsl_float(block[r, c]) for c in range(4) for r in range(4)) + ")"
+
+
+def _vec4(v: np.ndarray) -> str:
+    return "vec4(" + ", ".join(glsl_float(x) for x in v) + ")"
+
+
+def generate_fragment_shader(model) -> str:
+    """GLSL #version 330 core fragment shader for a trained ``NeuralTextureModel`` (see module docstring).
+
+    The texture size is baked in as constants (``TEX_W``, ``TEX_H``); the codebook size is not (it comes
+    with the ``u_codebook`` texture).
+    """
+    tex_w, tex_h, dim = int(model.tex_width), int(model.tex_height), int(model.feature_dim)
+    c4 = (dim + 3) // 4
+    use_dir = bool(model.shader.use_viewdir)
+    layers = model.shader.weights()
+
+    out: list[str] = [
+        "#version 330 core",
+        f"// NeuRas neural texture shader: {tex_w}x{tex_h} atlas, D={dim}, MLP "
+        + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3" + (", view-dependent" if use_dir else ""),
+        "in vec2 v_uv;",
+    ]
+    if use_dir:
+        out += ["in vec3 v_world;", "uniform vec3 u_cam_pos;"]
+    out += [
+        "uniform usampler2D u_index;",
+        "uniform sampler2D u_codebook;",
+        "out vec4 f_color;",
+        "",
+        "void main() {",
+        f"    vec2 xy = v_uv * vec2({tex_w}.0, {tex_h}.0) - 0.5;",
+        "    vec2 b0 = floor(xy);",
+        "    vec2 f = xy - b0;",
+        "    vec2 g = 1.0 - f;",
+        "    ivec2 i0 = ivec2(b0);",
+        f"    ivec2 lo = clamp(i0, ivec2(0), ivec2({tex_w - 1}, {tex_h - 1}));",
+        f"    ivec2 hi = clamp(i0 + 1, ivec2(0), ivec2({tex_w - 1}, {tex_h - 1}));",
+        "    float w00 = g.x * g.y;",
+        "    float w10 = f.x * g.y;",
+        "    float w01 = g.x * f.y;",
+        "    float w11 = f.x * f.y;",
+        "    int k00 = int(texelFetch(u_index, ivec2(lo.x, lo.y), 0).r);",
+        "    int k10 = int(texelFetch(u_index, ivec2(hi.x, lo.y), 0).r);",
+        "    int k01 = int(texelFetch(u_index, ivec2(lo.x, hi.y), 0).r);",
+        "    int k11 = int(texelFetch(u_index, ivec2(hi.x, hi.y), 0).r);",
+    ]
+    in_names = []
+    for c in range(c4):
+        out.append(f"    vec4 a0_{c} = w00 * texelFetch(u_codebook, ivec2({c}, k00), 0)"
+                   f" + w10 * texelFetch(u_codebook, ivec2({c}, k10), 0)"
+                   f" + w01 * texelFetch(u_codebook, ivec2({c}, k01), 0)"
+                   f" + w11 * texelFetch(u_codebook, ivec2({c}, k11), 0);")
+        in_names.append(f"a0_{c}")
+    if use_dir:
+        out.append("    vec4 a0_d = vec4(normalize(v_world - u_cam_pos), 0.0);")
+        in_names.append("a0_d")
+
+    # first layer's input columns: features 0..D-1 padded to 4*c4, then the direction padded to 4
+    w0, _ = layers[0]
+    cols = np.zeros((w0.shape[0], 4 * len(in_names)), np.float32)
+    cols[:, :dim] = w0[:, :dim]
+    if use_dir:
+        cols[:, 4 * c4:4 * c4 + 3] = w0[:, dim:dim + 3]
+    for n, (w, b) in enumerate(layers):
+        if n == 0:
+            w = cols
+        n_out = w.shape[0]
+        o4 = (n_out + 3) // 4
+        wp = np.zeros((4 * o4, w.shape[1]), np.float32)
+        wp[:n_out] = w
+        bp = np.zeros(4 * o4, np.float32)
+        bp[:n_out] = b
+        last = n == len(layers) - 1
+        names = []
+        for o in range(o4):
+            terms = [_vec4(bp[4 * o:4 * o + 4])]
+            for c, name in enumerate(in_names):
+                block = wp[4 * o:4 * o + 4, 4 * c:4 * c + 4]
+                if np.any(block != 0):
+                    terms.append(f"{_mat4(block)} * {name}")
+            expr = "\n        + ".join(terms)
+            nm = f"a{n + 1}_{o}"
+            if last:
+                out.append(f"    vec4 {nm} = {expr};")
+            else:
+                out.append(f"    vec4 {nm} = max({expr}, 0.0);")
+            names.append(nm)
+        in_names = names
+    out += [
+        f"    vec3 rgb = 1.0 / (1.0 + exp(-{in_names[0]}.xyz));",
+        "    f_color = vec4(rgb, 1.0);",
+        "}",
+        "",
+    ]
+    return "\n".join(out)

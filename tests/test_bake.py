@@ -1,0 +1,192 @@
+"""Tests of neuras_distill.bake: bundle round trip and validation, GLSL parity with the torch forward pass."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from neuras_distill.bake.bundle import Bundle, bake, load_bundle
+from neuras_distill.bake.glsl import generate_fragment_shader, glsl_float
+from neuras_distill.distill.model import NeuralTextureModel
+from neuras_distill.errors import BadInputError
+from neuras_distill.geometry.mesh import MeshData
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0):
+    torch.manual_seed(seed)
+    m = NeuralTextureModel(h, w, feature_dim=dim, num_codes=k, use_viewdir=use_viewdir)
+    with torch.no_grad():
+        m.texture.data.normal_(0.0, 1.0)
+        for layer in m.shader.layers:
+            layer.weight.mul_(2.0)
+            layer.bias.normal_(0.0, 0.3)
+    m.start_vq()
+    m.eval()
+    return m
+
+
+def quad_mesh():
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+    return MeshData(v, np.array([[0, 1, 2], [0, 2, 3]]), v[:, :2].copy())
+
+
+def test_glsl_float_is_exact():
+    for x in [0.1, -1e-8, 3.0, 123456.789, 1 / 3, -0.0, 1e-30]:
+        s = glsl_float(x)
+        assert "." in s or "e" in s
+        assert np.float32(float(s)) == np.float32(x)
+
+
+def test_bundle_round_trip_exact(tmp_path):
+    m = make_model()
+    b = bake(m, quad_mesh(), (0.1, 0.2, 0.3), extra_manifest={"scene": "test"})
+    assert b.textures["u_index"].dtype == np.uint16 and b.textures["u_codebook"].dtype == np.float32
+    assert b.textures["u_codebook"].shape[1:] == (2, 4)
+    assert b.manifest["num_codes"] == b.textures["u_codebook"].shape[0] <= 32
+    b.save(tmp_path / "bundle")
+    c = load_bundle(tmp_path / "bundle")
+    assert np.array_equal(c.textures["u_index"], b.textures["u_index"])
+    assert c.textures["u_index"].dtype == np.uint16
+    assert np.array_equal(c.textures["u_codebook"], b.textures["u_codebook"])
+    assert np.array_equal(c.mesh.vertices, b.mesh.vertices) and np.array_equal(c.mesh.faces, b.mesh.faces)
+    assert np.array_equal(c.mesh.uvs, b.mesh.uvs)
+    assert c.fragment_shader == b.fragment_shader
+    assert np.array_equal(c.background_color, np.float32([0.1, 0.2, 0.3]))
+    assert c.manifest == b.manifest and c.manifest["scene"] == "test"
+    on_disk = sum(p.stat().st_size for p in (tmp_path / "bundle").iterdir())
+    assert b.nbytes_on_disk() == on_disk
+    assert b.float16_nbytes() == 12 * 20 * 8 * 2
+
+
+def test_load_bundle_missing_or_corrupt(tmp_path):
+    with pytest.raises(BadInputError, match="does not exist"):
+        load_bundle(tmp_path / "nothing")
+    d = make_model_bundle(tmp_path)
+    (d / "codebook.npy").unlink()
+    with pytest.raises(BadInputError, match="codebook.npy"):
+        load_bundle(d)
+    d = make_model_bundle(tmp_path, "b2")
+    raw = bytearray((d / "feature_index.png").read_bytes())
+    raw[-20] ^= 0xFF
+    (d / "feature_index.png").write_bytes(bytes(raw))
+    with pytest.raises(BadInputError, match="feature_index.png"):
+        load_bundle(d)
+    d = make_model_bundle(tmp_path, "b3")
+    (d / "manifest.json").write_text("{not json")
+    with pytest.raises(BadInputError, match="manifest.json"):
+        load_bundle(d)
+    d = make_model_bundle(tmp_path, "b4")
+    man = json.loads((d / "manifest.json").read_text())
+    man["texture_width"] = 7
+    (d / "manifest.json").write_text(json.dumps(man))
+    with pytest.raises(BadInputError, match="feature_index.png"):
+        load_bundle(d)
+
+
+def make_model_bundle(tmp_path, name="b1"):
+    return bake(make_model(k=8, h=4, w=5), quad_mesh(), (0, 0, 0)).save(tmp_path / name)
+
+
+def test_bake_needs_uvs_and_vq_for_big_atlas():
+    m = make_model()
+    with pytest.raises(BadInputError, match="UVs"):
+        bake(m, MeshData(np.zeros((3, 3)), np.array([[0, 1, 2]])), (0, 0, 0))
+    big = NeuralTextureModel(300, 300, feature_dim=4, use_vq=False)
+    with pytest.raises(BadInputError, match="65535"):
+        big.baked_features()
+
+
+def test_shader_has_no_viewdir_code_when_unused():
+    src = generate_fragment_shader(make_model(use_viewdir=False))
+    assert "u_cam_pos" not in src and "v_world" not in src and "normalize" not in src
+    src = generate_fragment_shader(make_model(use_viewdir=True))
+    assert "uniform vec3 u_cam_pos;" in src and "normalize(v_world - u_cam_pos)" in src
+
+
+# ------------------------------------------------------------------------------------------ GL parity
+VERT = """
+#version 330 core
+in vec2 in_pos;
+uniform vec2 u_uv0;
+uniform vec2 u_uv_scale;
+out vec2 v_uv;
+out vec3 v_world;
+void main() {
+    vec2 t = in_pos * 0.5 + 0.5;
+    v_uv = u_uv0 + t * u_uv_scale;
+    v_world = vec3(2.0 * t.x - 1.0, 0.0, 2.0 * t.y - 1.0);
+    gl_Position = vec4(in_pos, 0.0, 1.0);
+}
+"""
+
+
+def gl_context():
+    moderngl = pytest.importorskip("moderngl")
+    try:
+        return moderngl, moderngl.create_context(standalone=True, backend="egl")
+    except Exception as exc:  # noqa: BLE001
+        pytest.skip(f"no headless GL context: {exc}")
+
+
+@pytest.mark.parametrize("use_viewdir,dim", [(True, 8), (False, 6)])
+def test_glsl_parity_with_torch(use_viewdir, dim):
+    moderngl, ctx = gl_context()
+    m = make_model(use_viewdir=use_viewdir, dim=dim)
+    b = bake(m, quad_mesh(), (0, 0, 0))
+    res = 96
+    uv0, uv_scale = np.float32([-0.1, -0.05]), np.float32([1.2, 1.1])    # a border of clamped lookups
+    cam = np.float32([0.3, -2.5, 0.4])
+    try:
+        prog = ctx.program(vertex_shader=VERT, fragment_shader=b.fragment_shader)
+        prog["u_uv0"].value = tuple(uv0)
+        prog["u_uv_scale"].value = tuple(uv_scale)
+        if use_viewdir:
+            prog["u_cam_pos"].value = tuple(cam)
+        else:
+            assert "u_cam_pos" not in prog
+        idx = b.textures["u_index"]
+        cb = b.textures["u_codebook"]
+        t_idx = ctx.texture((idx.shape[1], idx.shape[0]), 1, data=idx.tobytes(), dtype="u2")
+        t_cb = ctx.texture((cb.shape[1], cb.shape[0]), 4, data=cb.tobytes(), dtype="f4")
+        for t in (t_idx, t_cb):
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        prog["u_index"].value = 0
+        prog["u_codebook"].value = 1
+        t_idx.use(0)
+        t_cb.use(1)
+        quad = ctx.buffer(np.float32([-1, -1, 1, -1, -1, 1, 1, 1]).tobytes())
+        vao = ctx.vertex_array(prog, [(quad, "2f", "in_pos")])
+        color = ctx.texture((res, res), 4, dtype="f4")
+        fbo = ctx.framebuffer(color_attachments=[color])
+        fbo.use()
+        ctx.viewport = (0, 0, res, res)
+        fbo.clear(0.0, 0.0, 0.0, 0.0)
+        vao.render(moderngl.TRIANGLE_STRIP)
+        gl = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(res, res, 4)[..., :3]
+    finally:
+        ctx.release()
+    # torch reference on the same uv / dirs (row r of the readback is t.y = (r + 0.5) / res)
+    t = (np.arange(res, dtype=np.float32) + 0.5) / res
+    ty, tx = np.meshgrid(t, t, indexing="ij")
+    uv = np.stack([uv0[0] + tx * uv_scale[0], uv0[1] + ty * uv_scale[1]], -1).astype(np.float32)
+    world = np.stack([2 * tx - 1, np.zeros_like(tx), 2 * ty - 1], -1)
+    d = world - cam
+    dirs = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    ref = m.render_gbuffer(uv, np.ones((res, res), bool), dirs, np.zeros(3))
+    diff = np.abs(gl - ref)
+    mse = float((diff ** 2).mean())
+    psnr = 10 * np.log10(1.0 / max(mse, 1e-20))
+    assert ref.std() > 0.05          # the test image is not flat
+    assert diff.max() <= 1e-3 and psnr >= 60.0, (diff.max(), psnr)
+    print(f"parity use_viewdir={use_viewdir}: max abs diff {diff.max():.2e}, PSNR {psnr:.1f} dB")
