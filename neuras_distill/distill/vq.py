@@ -48,14 +48,26 @@ class VectorQuantizer(nn.Module):
 
     # ------------------------------------------------------------------ assignment
     @torch.no_grad()
-    def _nearest(self, z: torch.Tensor, codebook: torch.Tensor | None = None) -> torch.Tensor:
-        """(M, D) -> (M,) int64 index of the nearest code (Euclidean, fp32, centred)."""
+    def _nearest(self, z: torch.Tensor, codebook: torch.Tensor | None = None, block: int = 256) -> torch.Tensor:
+        """(M, D) -> (M,) int64 index of the nearest code (Euclidean, fp32, centred).
+
+        Rows go in blocks of ``block`` so the (block, K) distance tile stays in cache; one fused addmm
+        (``|e_c|^2 - 2 x_c e_c^T``) per tile, then argmin.
+        """
         e = (self.codebook if codebook is None else codebook).detach().float()
         mu = e.mean(dim=0, keepdim=True)
         ec = e - mu
+        ect = ec.t().contiguous()
+        e2 = (ec * ec).sum(dim=1)[None, :]
         xc = z.detach().float() - mu
-        dist = (ec * ec).sum(dim=1)[None, :] - 2.0 * (xc @ ec.t())
-        return dist.argmin(dim=1)
+        out = torch.empty(xc.shape[0], dtype=torch.long, device=xc.device)
+        tile = torch.empty(min(block, max(xc.shape[0], 1)), e.shape[0], device=xc.device)
+        for s in range(0, xc.shape[0], block):
+            x = xc[s:s + block]
+            t = tile[:x.shape[0]]
+            torch.addmm(e2, x, ect, beta=1.0, alpha=-2.0, out=t)
+            torch.argmin(t, dim=1, out=out[s:s + block])
+        return out
 
     @torch.no_grad()
     def quantize_all(self, z: torch.Tensor, chunk: int = 65536) -> torch.Tensor:
