@@ -153,6 +153,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     from ..playback.context import gl_info
     from ..playback.rasterize import rasterize_gbuffer
     from ..playback.renderer import BundleRenderer
+    from ..playback.shaders import VERTEX_SHADER
     from ..render.volume import VolumeRenderer
 
     t_start = time.perf_counter()
@@ -215,13 +216,13 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                     lr=cfg.train.lr, batch_patches=cfg.train.batch_patches, patch=cfg.train.patch,
                     ssim_weight=cfg.train.ssim_weight, time_budget_s=cfg.train.time_budget_s or None,
                     progress=progress, seed=cfg.train.seed)
-    train_history = list(getattr(train_log, "history", train_log))
-    stages.done(final=train_history[-1] if train_history else None)
+    train_history = list(train_log.entries)
+    stages.done(**{k: v for k, v in train_log.as_dict().items() if k != "entries"})
 
     # 6. bake ---------------------------------------------------------------------------------------
     stages.start("bake", "quantized features -> textures, MLP -> GLSL")
     bg = decisions.background_color(field)
-    bundle = bake(model, mesh, background_color=bg.tolist(),
+    bundle = bake(model, mesh, background_color=bg.tolist(), vertex_shader=VERTEX_SHADER,
                   extra_manifest={"left_out": left_out, "view_dependence": use_viewdir})
     codes_total = t.num_codes
     codes_kept = int(bundle.manifest.get("num_codes", codes_total))
@@ -249,8 +250,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     fps_after = float(timing["fps"])
     stages.done(psnr=quality["psnr"], ssim=quality["ssim"])
 
-    float16_bytes = int(bundle.float16_feature_bytes()) if hasattr(bundle, "float16_feature_bytes") else None
-    vq_bytes = int(bundle.feature_bytes_on_disk()) if hasattr(bundle, "feature_bytes_on_disk") else None
+    float16_bytes = int(bundle.float16_nbytes())
+    vq_bytes = int(bundle.feature_nbytes())
     rep = {
         "version": __version__,
         "fps_before": fps_before,
@@ -271,7 +272,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "texture_resolution": [t.resolution, t.resolution],
         "feature_dim": t.feature_dim,
         "codebook_size": codes_kept,
-        "bundle_bytes": int(bundle.nbytes_on_disk()) if root is not None else None,
+        "bundle_bytes": int(bundle.nbytes_on_disk()),
         "feature_bytes_vq": vq_bytes,
         "feature_bytes_float16": float16_bytes,
         "left_out": left_out,
@@ -280,6 +281,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "frame_time_ms": {"field_median": 1000 * float(np.median(field_seconds)),
                           "bundle_median": timing["median_ms"], "bundle_p90": timing.get("p90_ms")},
         "train_log": train_history,
+        "train_summary": {k: v for k, v in train_log.as_dict().items() if k != "entries"},
         "views": {"train": len(train), "test": len(test),
                   "train_resolution": [train.width, train.height]},
         "teacher_steps": cfg.teacher.num_steps,
