@@ -10,7 +10,7 @@ import torch
 
 from neuras_distill.bake.bundle import Bundle, bake, load_bundle
 from neuras_distill.bake.glsl import generate_fragment_shader, glsl_float
-from neuras_distill.distill.model import NeuralTextureModel
+from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
 

@@ -56,6 +56,16 @@ def error_vs_runtime(make_renderer, cameras: Cameras, reference_steps: int, step
     return points
 
 
+def gl_torch_parity(model, mesh, cameras: Cameras, gl_image: np.ndarray, background: np.ndarray,
+                    rasterize) -> float:
+    """PSNR of the OpenGL render of camera 0 against the torch forward pass of the same model on the same
+    G-buffer: proves the baked bundle plays what was trained (8-bit framebuffer caps it near 59 dB)."""
+    gbuffer = rasterize(mesh, cameras[0])
+    dirs = cameras.rays(0)[1].numpy()
+    reference = model.render_gbuffer(gbuffer.uv[0], gbuffer.coverage[0], dirs, background)
+    return metrics.psnr(gl_image, reference)
+
+
 def side_by_side(field_image: np.ndarray, bundle_image: np.ndarray, full_scale: float = 0.1) -> np.ndarray:
     """(H, 3W + 2*gap, 3) uint8: field | bundle | error heat map."""
     heat = metrics.error_heatmap(bundle_image, field_image, full_scale)

@@ -28,6 +28,7 @@ def summary_table(rep: dict) -> str:
         (f"FPS @ {w}x{h}", f"{rep['fps_before']:.3g}", f"{rep['fps_after']:.4g}"),
         ("frame time (median)", f"{ft['field_median']:.1f} ms", f"{ft['bundle_median']:.2f} ms"),
         ("PSNR / SSIM vs field", "reference", f"{rep['psnr']:.2f} dB / {rep['ssim']:.4f}"),
+        ("OpenGL vs torch parity", "-", f"{rep['parity_psnr']:.1f} dB"),
         ("faces", "-", f"{rep['mesh_faces']}"),
         ("texture", "-", f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
                          f"{rep['codebook_size']} codes"),
@@ -56,6 +57,7 @@ def markdown(rep: dict) -> str:
         f"| PSNR vs field | reference | {rep['psnr']:.2f} dB |",
         f"| SSIM vs field | reference | {rep['ssim']:.4f} |",
         f"| LPIPS | | {rep['lpips'] if rep['lpips'] is not None else 'n/a: ' + rep.get('lpips_note', '')} |",
+        f"| OpenGL vs torch forward (parity) | | {rep['parity_psnr']:.1f} dB |",
         f"| faces | | {rep['mesh_faces']} |",
         f"| texture | | {rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
         f"{rep['codebook_size']} codes |",

@@ -147,8 +147,8 @@ def _pick_cameras(field, cameras, cfg: DistillConfig) -> Cameras:
 
 def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool) -> DistillResult:
     from ..bake.bundle import bake
-    from ..distill.model import NeuralTextureModel
-    from ..distill.train import fit
+    from ..neural.model import NeuralTextureModel
+    from ..neural.train import fit
     from ..geometry.extract import extract_mesh
     from ..playback.context import gl_info
     from ..playback.rasterize import rasterize_gbuffer
@@ -242,13 +242,14 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     player = BundleRenderer(bundle)
     bundle_images = [player.render(test, i) for i in range(len(test))]
     quality = evaluate.compare(bundle_images, field_images)
+    parity = evaluate.gl_torch_parity(model, mesh, test, bundle_images[0], bg.numpy(), rasterize_gbuffer)
     timing = player.time_frames(test, warmup=5, frames=cfg.eval.fps_frames)
     points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(field, num_steps=s), test,
                                        2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
                                        cfg.teacher.num_steps, player)
     fps_before = 1.0 / float(np.median(field_seconds))
     fps_after = float(timing["fps"])
-    stages.done(psnr=quality["psnr"], ssim=quality["ssim"])
+    stages.done(psnr=quality["psnr"], ssim=quality["ssim"], parity_psnr=parity)
 
     float16_bytes = int(bundle.float16_nbytes())
     vq_bytes = int(bundle.feature_nbytes())
@@ -263,6 +264,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "ssim": quality["ssim"],
         "lpips": None,
         "lpips_note": "no LPIPS backbone weights available locally (none are downloaded)",
+        "parity_psnr": parity,
         "psnr_per_view": quality["psnr_per_view"],
         "ssim_per_view": quality["ssim_per_view"],
         "distill_seconds": time.perf_counter() - t_start,

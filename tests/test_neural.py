@@ -1,4 +1,4 @@
-"""Tests of neuras_distill.distill: bilinear convention, VQ, SSIM/VGG loader, model, fit()."""
+"""Tests of neuras_distill.neural: bilinear convention, VQ, SSIM/VGG loader, model, fit()."""
 
 from __future__ import annotations
 
@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from neuras_distill.distill.losses import PerceptualLoss, ssim, vgg16_features
-from neuras_distill.distill.model import NeuralTextureModel
-from neuras_distill.distill.shader import MLPShader
-from neuras_distill.distill.texture import NeuralTexture, bilinear_corners
-from neuras_distill.distill.train import fit
-from neuras_distill.distill.vq import VectorQuantizer
+from neuras_distill.neural.losses import PerceptualLoss, ssim, vgg16_features
+from neuras_distill.neural.model import NeuralTextureModel
+from neuras_distill.neural.shader import MLPShader
+from neuras_distill.neural.texture import NeuralTexture, bilinear_corners
+from neuras_distill.neural.train import fit
+from neuras_distill.neural.vq import VectorQuantizer
 from neuras_distill.errors import BadInputError
 
 

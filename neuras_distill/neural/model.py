@@ -20,9 +20,9 @@ import torch
 from scipy import ndimage
 from torch import nn
 
-from neuras_distill.distill.shader import MLPShader
-from neuras_distill.distill.texture import NeuralTexture, bilinear_corners
-from neuras_distill.distill.vq import VectorQuantizer
+from neuras_distill.neural.shader import MLPShader
+from neuras_distill.neural.texture import NeuralTexture, bilinear_corners
+from neuras_distill.neural.vq import VectorQuantizer
 from neuras_distill.errors import BadInputError
 
 

@@ -30,8 +30,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from neuras_distill.distill.losses import ssim
-from neuras_distill.distill.model import NeuralTextureModel
+from neuras_distill.neural.losses import ssim
+from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.errors import BadInputError
 
 
