@@ -299,8 +299,9 @@ class BunnyField:
         return (rgb + spec[:, None]).clamp(0.0, 1.0)
 
     def default_cameras(self, n: int, width: int = 512, height: int = 512):
-        """Helix orbit (z up, elevation 15..50 degrees, 40 degree fov) framing the whole aabb."""
-        return orbit_framing(self.aabb, n, width, height)
+        """Helix orbit (z up, elevation 15..50 degrees, 40 degree fov) framing the bunny and its base (the
+        aabb's bounding sphere is loose around the round base, so the orbit comes in to 0.75 of it)."""
+        return orbit_framing(self.aabb, n, width, height, padding=0.75)
 
 
 # ---------------------------------------------------------------------------------------------- registry

@@ -139,7 +139,7 @@ def _pick_cameras(field, cameras, cfg: DistillConfig) -> Cameras:
         make = getattr(field, "default_cameras", None)
         require(callable(make), "no cameras given and the field brings none; pass cameras "
                                 "(e.g. nd.Cameras.from_transforms('transforms.json'))")
-        cameras = make(cfg.cameras.num_views, 512, 512)
+        cameras = make(cfg.cameras.num_views, cfg.cameras.width, cfg.cameras.height)
     require(isinstance(cameras, Cameras), f"cameras must be an nd.Cameras, got {type(cameras).__name__}")
     require(len(cameras) >= 2, f"need at least 2 cameras (some to train on, some held out), got {len(cameras)}")
     return cameras
@@ -201,7 +201,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
 
     # 4. gbuffer ------------------------------------------------------------------------------------
     stages.start("gbuffer", f"rasterizing {mesh.num_faces} faces for {len(train)} views (OpenGL)")
-    gbuffer = rasterize_gbuffer(mesh, train)
+    gbuffer = rasterize_gbuffer(mesh, train, cull_back_faces=cfg.geometry.cull_back_faces)
     dirs = np.stack([train.rays(i)[1].numpy() for i in range(len(train))]).astype(np.float32)
     stages.done(coverage=float(gbuffer.coverage.mean()))
 
@@ -223,7 +223,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     stages.start("bake", "quantized features -> textures, MLP -> GLSL")
     bg = decisions.background_color(field)
     bundle = bake(model, mesh, background_color=bg.tolist(), vertex_shader=VERTEX_SHADER,
-                  extra_manifest={"left_out": left_out, "view_dependence": use_viewdir})
+                  extra_manifest={"left_out": left_out, "view_dependence": use_viewdir,
+                                  "cull_back_faces": cfg.geometry.cull_back_faces})
     codes_total = t.num_codes
     codes_kept = int(bundle.manifest.get("num_codes", codes_total))
     if codes_kept < codes_total:
@@ -242,7 +243,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     player = BundleRenderer(bundle)
     bundle_images = [player.render(test, i) for i in range(len(test))]
     quality = evaluate.compare(bundle_images, field_images)
-    parity = evaluate.gl_torch_parity(model, mesh, test, bundle_images[0], bg.numpy(), rasterize_gbuffer)
+    parity = evaluate.gl_torch_parity(model, mesh, test, bundle_images[0], bg.numpy(),
+                                      lambda m, c: rasterize_gbuffer(m, c, cull_back_faces=cfg.geometry.cull_back_faces))
     timing = player.time_frames(test, warmup=5, frames=cfg.eval.fps_frames)
     points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(field, num_steps=s), test,
                                        2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,

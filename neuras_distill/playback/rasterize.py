@@ -23,6 +23,21 @@ def _empty_gbuffer(n: int, h: int, w: int) -> GBuffer:
                    coverage=np.zeros((n, h, w), bool), depth=np.full((n, h, w), np.inf, np.float32))
 
 
+def set_raster_state(ctx, cull_back_faces: bool) -> None:
+    """The one raster state shared by G-buffers and playback: depth test "<", no blending, and back faces
+    (clockwise in the window: faces seen from inside a closed mesh) culled when ``cull_back_faces``. Culling
+    changes nothing visible on a closed mesh and skips shading the hidden half of it."""
+    import moderngl
+
+    ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+    ctx.enable(moderngl.DEPTH_TEST)
+    ctx.depth_func = "<"
+    if cull_back_faces:
+        ctx.front_face = "ccw"
+        ctx.cull_face = "back"
+        ctx.enable(moderngl.CULL_FACE)
+
+
 def mesh_vertex_array(ctx, program, mesh: MeshData):
     """(vao, [buffers]) drawing ``mesh`` as indexed triangles with attributes in_position / in_uv.
 
@@ -50,7 +65,7 @@ def _check_mesh(mesh: MeshData) -> None:
         raise ValueError(f"mesh has {mesh.uvs.shape[0]} uvs for {mesh.num_vertices} vertices")
 
 
-def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None) -> GBuffer:
+def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: bool = True) -> GBuffer:
     """Rasterize ``mesh`` for every camera of ``cameras``.
 
     Args:
@@ -89,9 +104,7 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None) -> GBuffer:
         resources += [tex_uv, tex_face, tex_depth, depth_rb, fbo]
 
         fbo.use()
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.depth_func = "<"
+        set_raster_state(ctx, cull_back_faces)
         for i in range(n):
             near, far = camera_near_far(bounds, cameras, i)
             prog["u_mvp"].write(gl_matrix(mvp_for(cameras, i, near, far)))

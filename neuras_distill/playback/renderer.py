@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import BadInputError
 from .context import get_context
 from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for
-from .rasterize import _check_mesh, mesh_vertex_array
+from .rasterize import _check_mesh, mesh_vertex_array, set_raster_state
 from .shaders import VERTEX_SHADER
 
 
@@ -102,9 +102,7 @@ class BundleRenderer:
         mgl = self._mgl
         fbo = self._fbo(int(cameras.width), int(cameras.height))
         fbo.use()
-        self.ctx.disable(mgl.CULL_FACE | mgl.BLEND)
-        self.ctx.enable(mgl.DEPTH_TEST)
-        self.ctx.depth_func = "<"
+        set_raster_state(self.ctx, bool(self.bundle.manifest.get("cull_back_faces", False)))
         fbo.clear(*self.background, 1.0, depth=1.0)
         if self.vao is not None:
             self._set_camera(cameras, i)
