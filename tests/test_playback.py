@@ -299,3 +299,19 @@ def test_render_orbit_frames_cli_form_frames_the_mesh(tmp_path):
     gb = rasterize_gbuffer(bundle.mesh, orbit_cameras_for(bundle.mesh, 4, 32, 24, elevation_deg=60.0))
     assert gb.coverage.any(axis=(1, 2)).all()  # every view sees the quad
     assert not gb.coverage[:, [0, -1], :].any() and not gb.coverage[:, :, [0, -1]].any()  # and it fits the frame
+
+
+@pytest.mark.gl
+@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
+def test_back_faces_are_culled_only_when_asked():
+    from neuras_distill.playback.rasterize import rasterize_gbuffer
+
+    verts = _quad(0.0, 1.0)
+    facing = MeshData(verts, [[0, 1, 2], [0, 2, 3]], np.zeros((4, 2)))  # counter-clockwise seen from +z
+    away = MeshData(verts, [[0, 2, 1], [0, 3, 2]], np.zeros((4, 2)))    # the same quad, wound the other way
+    pose = torch.eye(4)
+    pose[2, 3] = 4.0
+    cams = Cameras(pose[None], 40.0, 40.0, 16.0, 16.0, 32, 32)
+    assert rasterize_gbuffer(facing, cams, cull_back_faces=True).coverage[0, 16, 16]
+    assert not rasterize_gbuffer(away, cams, cull_back_faces=True).coverage.any()
+    assert rasterize_gbuffer(away, cams, cull_back_faces=False).coverage[0, 16, 16]

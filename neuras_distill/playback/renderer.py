@@ -98,11 +98,16 @@ class BundleRenderer:
         if "u_cam_pos" in self.program:
             self.program["u_cam_pos"].value = tuple(float(x) for x in cameras.c2w[i, :3, 3])
 
+    @property
+    def cull_back_faces(self) -> bool:
+        """Whether the bundle was trained (and so plays) with back faces culled (manifest ``cull_back_faces``)."""
+        return bool((getattr(self.bundle, "manifest", None) or {}).get("cull_back_faces", False))
+
     def _draw(self, cameras, i: int):
         mgl = self._mgl
         fbo = self._fbo(int(cameras.width), int(cameras.height))
         fbo.use()
-        set_raster_state(self.ctx, bool(self.bundle.manifest.get("cull_back_faces", False)))
+        set_raster_state(self.ctx, self.cull_back_faces)
         fbo.clear(*self.background, 1.0, depth=1.0)
         if self.vao is not None:
             self._set_camera(cameras, i)
