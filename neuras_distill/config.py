@@ -31,7 +31,7 @@ class CameraConfig:
 class TeacherConfig:
     num_steps: int = 256
     """Ray-marching steps across the field's box diagonal (the teacher and the "before" renderer)."""
-    train_width: int = 480
+    train_width: int = 640
     """Width in pixels of the training renders (height follows the cameras' aspect ratio)."""
 
 
@@ -52,8 +52,9 @@ class GeometryConfig:
 
 @dataclass
 class TextureConfig:
-    resolution: int = 1024
-    """Side of the square feature atlas in texels."""
+    resolution: int = 512
+    """Side of the square feature atlas in texels (about one texel per pixel of the training views: a finer
+    atlas leaves most texels seen by one or two pixels, which VQ turns into speckle)."""
     feature_dim: int = 8
     """Channels per texel (D)."""
     num_codes: int = 1024

@@ -161,6 +161,7 @@ def test_glsl_parity_with_torch(use_viewdir, dim):
         t_cb = ctx.texture((cb.shape[1], cb.shape[0]), 4, data=cb.tobytes(), dtype="f4")
         for t in (t_idx, t_cb):
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            t.repeat_x = t.repeat_y = False
         prog["u_index"].value = 0
         prog["u_codebook"].value = 1
         t_idx.use(0)

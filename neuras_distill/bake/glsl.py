@@ -1,10 +1,12 @@
-"""Generation of the fragment shader that plays a :class:`NeuralTextureModel` (GLSL 330 core).
+"""Generation of the fragment shader that plays a :class:`NeuralTextureModel` (GLSL 400 core).
 
 Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward pass:
 
 - bilinear corners exactly as ``distill/texture.py`` (x = u*W - 0.5, floor, clamped corners, weights
   (1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy), blended in the order c00, c10, c01, c11;
-- ``u_index`` (R16UI, H x W): code index per texel, read with ``texelFetch(u_index, ivec2(i, j), 0)``;
+- ``u_index`` (R16UI, H x W, CLAMP_TO_EDGE): code index per texel; the four corner indices come from one
+  ``textureGather`` at the centre of the 2x2 cell (a quarter of the fetches of four texelFetch calls, which
+  were the second largest cost per pixel on llvmpipe);
 - ``u_codebook`` (RGBA32F, width ceil(D/4), height K): ``texelFetch(u_codebook, ivec2(c, k), 0)`` holds
   features 4c..4c+3 of code k (zero padded);
 - the MLP unrolled as ``mat4 * vec4`` blocks with the weights as float literals (9 significant digits, so every
@@ -54,7 +56,7 @@ def generate_fragment_shader(model) -> str:
     layers = model.shader.weights()
 
     out: list[str] = [
-        "#version 330 core",
+        "#version 400 core",
         f"// NeuRas neural texture shader: {tex_w}x{tex_h} atlas, D={dim}, MLP "
         + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3" + (", view-dependent" if use_dir else ""),
         "in vec2 v_uv;",
@@ -72,16 +74,17 @@ def generate_fragment_shader(model) -> str:
         "    vec2 f = xy - b0;",
         "    vec2 g = 1.0 - f;",
         "    ivec2 i0 = ivec2(b0);",
-        f"    ivec2 lo = clamp(i0, ivec2(0), ivec2({tex_w - 1}, {tex_h - 1}));",
-        f"    ivec2 hi = clamp(i0 + 1, ivec2(0), ivec2({tex_w - 1}, {tex_h - 1}));",
         "    float w00 = g.x * g.y;",
         "    float w10 = f.x * g.y;",
         "    float w01 = g.x * f.y;",
         "    float w11 = f.x * f.y;",
-        "    int k00 = int(texelFetch(u_index, ivec2(lo.x, lo.y), 0).r);",
-        "    int k10 = int(texelFetch(u_index, ivec2(hi.x, lo.y), 0).r);",
-        "    int k01 = int(texelFetch(u_index, ivec2(lo.x, hi.y), 0).r);",
-        "    int k11 = int(texelFetch(u_index, ivec2(hi.x, hi.y), 0).r);",
+        # One gather at the exact centre of the 2x2 cell (unambiguous footprint); CLAMP_TO_EDGE does the
+        # border clamping. Components: x (i0, j1), y (i1, j1), z (i1, j0), w (i0, j0).
+        f"    uvec4 k = textureGather(u_index, (b0 + 1.0) / vec2({tex_w}.0, {tex_h}.0));",
+        "    int k00 = int(k.w);",
+        "    int k10 = int(k.z);",
+        "    int k01 = int(k.x);",
+        "    int k11 = int(k.y);",
     ]
     in_names = []
     for c in range(c4):
