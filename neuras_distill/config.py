@@ -61,8 +61,9 @@ class TextureConfig:
     """Vector-quantizer codebook size (K); codes never used are dropped at bake time."""
     hidden: int = 16
     """Hidden units of the MLP shader (NeuRas uses 32; 16 halves the per-pixel cost at ~0.1 dB here)."""
-    num_layers: int = 3
-    """Linear layers of the MLP shader."""
+    num_layers: int = 2
+    """Linear layers of the MLP shader (2: one hidden layer; measured 32.7 dB vs 32.5 dB for 3 layers on the
+    demo, with the bundle ~20 % faster at 1080p on llvmpipe)."""
     view_dependence: str = "auto"
     """"auto" (measure the field and drop the view direction when colour does not depend on it), "on", "off"."""
     view_threshold: float = 0.01
