@@ -13,3 +13,14 @@ DATA = Path(__file__).parent / "data"
 def fox_transforms() -> Path:
     """The real Instant-NGP fox capture's transforms.json (67 frames, 1080x1920, with lens distortion)."""
     return DATA / "fox_transforms.json"
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Small tensors: one torch thread is faster and immune to a busy shared CPU."""
+    import torch
+
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)

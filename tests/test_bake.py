@@ -15,12 +15,7 @@ from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0):

@@ -239,13 +239,7 @@ def synthetic_gbuffer(n=4, res=32, seed=0):
     return uv, cov, dirs, tgt.astype(np.float32)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    """Small tensors: one torch thread is faster and immune to a busy shared CPU."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _psnr(model, uv, cov, dirs, tgt):
