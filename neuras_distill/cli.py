@@ -40,6 +40,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kind", choices=["sdf", "density"], default="sdf", help="field type of the scene")
     _add_run_options(p)
 
+    p = sub.add_parser("from-ngp", help="an Instant-NGP snapshot (.ingp / .msgpack) through the whole pipeline")
+    p.add_argument("snapshot", help="the snapshot instant-ngp saved (--save_snapshot)")
+    p.add_argument("--cameras", default=None,
+                   help="transforms.json to train and evaluate on (default: the cameras stored in the snapshot)")
+    p.add_argument("--foreground-box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="world box (transforms.json frame) holding the foreground (default: the snapshot's "
+                        "render box, or its occupied cells)")
+    p.add_argument("--latent-view", default="0",
+                   help="training image whose appearance latent is rendered (default 0, as instant-ngp), or 'mean'")
+    _add_run_options(p)
+
+    p = sub.add_parser("from-sdf", help="a NeuS / hash-grid NeuS checkpoint (.pth / .ckpt) through the pipeline")
+    p.add_argument("checkpoint", help="NeuS ckpt_XXXXXX.pth or instant-nsr-pl .ckpt")
+    p.add_argument("--cameras", default=None,
+                   help="NeuS cameras_sphere.npz (also sets the world frame) or a transforms.json")
+    p.add_argument("--image-size", default=None, metavar="WxH",
+                   help="image size of the cameras_sphere.npz views (it does not store one)")
+    p.add_argument("--model-config", default=None,
+                   help="instant-nsr-pl parsed.yaml of the run (grid and network sizes)")
+    p.add_argument("--density", choices=["neus", "laplace"], default="neus",
+                   help="SDF to opacity: NeuS logistic (default) or VolSDF Laplace")
+    _add_run_options(p)
+
     p = sub.add_parser("view", help="play a bundle: render an orbit to PNG frames (headless)")
     p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
     p.add_argument("--orbit", action="store_true", help="render an orbit around the bundle to PNG frames")
@@ -80,6 +103,77 @@ def _run_scene(args, name: str) -> int:
     return 0
 
 
+def _parse_box(text: str):
+    from .errors import BadInputError
+
+    try:
+        v = [float(t) for t in text.replace(" ", "").split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 6:
+        raise BadInputError(f"--foreground-box must be six numbers X0,Y0,Z0,X1,Y1,Z1, got {text!r}")
+    return [v[:3], v[3:]]
+
+
+def _run_checkpoint(args, path: str, adapter: str, options: dict) -> int:
+    from pathlib import Path
+
+    from .errors import require
+    from .pipeline.run import distill
+    from .pipeline.rundir import check_output_folder
+    from .registry import load_field
+    from .render.cameras import Cameras
+
+    cfg = _config_from_args(args)
+    src = Path(path)
+    out = Path(args.out or f"runs/{src.stem or 'field'}")
+    check_output_folder(out.resolve())  # fail before any work
+    cameras = None
+    cam_path = getattr(args, "cameras", None)
+    if cam_path is not None:
+        cam_file = Path(cam_path)
+        require(cam_file.is_file(), f"--cameras {cam_path}: no such file")
+        if cam_file.suffix.lower() == ".json":
+            cameras = Cameras.from_transforms(cam_file)
+    field = load_field(src, adapter=adapter, **options)
+    if cameras is None and getattr(field, "cameras", None) is None and cam_path is None:
+        require(callable(getattr(field, "default_cameras", None)),
+                f"{src} stores no cameras; pass --cameras transforms.json")
+    distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None)
+    return 0
+
+
+def _from_ngp(args) -> int:
+    options = {"latent_view": args.latent_view if args.latent_view == "mean" else _int(args.latent_view,
+                                                                                        "--latent-view")}
+    if args.foreground_box is not None:
+        options["foreground_box"] = _parse_box(args.foreground_box)
+    return _run_checkpoint(args, args.snapshot, "instant_ngp", options)
+
+
+def _from_sdf(args) -> int:
+    from pathlib import Path
+
+    options: dict = {"density": args.density}
+    if args.cameras is not None and Path(args.cameras).suffix.lower() != ".json":
+        options["cameras"] = args.cameras
+    if args.image_size is not None:
+        w, _, h = args.image_size.lower().partition("x")
+        options["width"], options["height"] = _int(w, "--image-size"), _int(h, "--image-size")
+    if args.model_config is not None:
+        options["config"] = args.model_config
+    return _run_checkpoint(args, args.checkpoint, "neus", options)
+
+
+def _int(text: str, flag: str) -> int:
+    from .errors import BadInputError
+
+    try:
+        return int(text)
+    except ValueError:
+        raise BadInputError(f"{flag} must be an integer, got {text!r}") from None
+
+
 def _view(args) -> int:
     from pathlib import Path
 
@@ -104,6 +198,10 @@ def main(argv: list[str] | None = None) -> int:
             return _run_scene(args, DEFAULT_SCENE)
         if args.command == "from-synthetic":
             return _run_scene(args, args.name)
+        if args.command == "from-ngp":
+            return _from_ngp(args)
+        if args.command == "from-sdf":
+            return _from_sdf(args)
         if args.command == "view":
             return _view(args)
     except BadInputError as exc:

@@ -16,11 +16,23 @@ GROUP = "neuras_distill.adapters"
 
 
 def available_adapters() -> dict:
-    """name -> adapter class, for every installed adapter."""
-    adapters = {}
+    """name -> adapter class, for every installed adapter that imports cleanly (see :func:`broken_adapters`)."""
+    return _scan()[0]
+
+
+def broken_adapters() -> dict:
+    """name -> one-line reason, for installed adapters whose module fails to import."""
+    return _scan()[1]
+
+
+def _scan() -> tuple[dict, dict]:
+    adapters, broken = {}, {}
     for ep in entry_points(group=GROUP):
-        adapters[ep.name] = ep.load()
-    return adapters
+        try:
+            adapters[ep.name] = ep.load()
+        except Exception as exc:  # noqa: BLE001 - one broken plug-in must not take the others down
+            broken[ep.name] = f"{type(exc).__name__}: {exc}"
+    return adapters, broken
 
 
 def load_field(path, adapter: str | None = None, **options):
@@ -37,6 +49,8 @@ def load_field(path, adapter: str | None = None, **options):
         require(path.exists(), f"{path} does not exist; give the path of a trained field's checkpoint")
         require(path.is_file(), f"{path} is a directory; give the checkpoint file inside it")
     if adapter is not None:
+        broken = broken_adapters()
+        require(adapter not in broken, f"adapter {adapter!r} is installed but fails to import ({broken.get(adapter)})")
         require(adapter in adapters, f"unknown adapter {adapter!r}; installed: {', '.join(sorted(adapters))}")
         return adapters[adapter]().load(path, **options)
     for name, cls in adapters.items():

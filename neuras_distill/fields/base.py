@@ -41,6 +41,9 @@ class Field(Protocol):
         inv_s: float, SDF sharpness (NeuS ``s``), used to turn an SDF into opacity.
         unbounded: bool, content lies outside ``aabb``.
         cameras: :class:`~neuras_distill.render.cameras.Cameras` the field was trained with.
+        surface_level: float, density fields: σ at which the mesh is extracted (default: adaptive level).
+        occupancy_grid(resolution): an :class:`~neuras_distill.render.occupancy.OccupancyGrid` over ``aabb``
+            containing every cell where the field is non-zero (the renderer skips the rest), or None.
     """
 
     kind: str

@@ -184,7 +184,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                              f"{cfg.geometry.face_budget} faces, culling, UV unwrap")
     mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
                         face_budget=cfg.geometry.face_budget, texture_resolution=cfg.texture.resolution,
-                        unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen)
+                        unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen,
+                        density_level=getattr(field, "surface_level", None))
     culled = int(mesh.stats.get("culled_faces", 0))
     if culled:
         left_out.append({"component": "unseen faces",

@@ -45,8 +45,9 @@ class VolumeRenderer:
         field: any object satisfying the Field contract.
         num_steps: uniform steps across the aabb diagonal (step length = diagonal / num_steps).
         chunk: rays processed together (bounds memory: about chunk * segment * 40 bytes of temporaries).
-        occupancy: ``None`` (no skipping), an :class:`OccupancyGrid`, or ``"auto"`` (built from the field at
-            ``occupancy_resolution``).
+        occupancy: ``None`` (no skipping), an :class:`OccupancyGrid`, or ``"auto"``: the field's own
+            ``occupancy_grid(resolution)`` when it has one (it must contain every cell where the field is
+            non-zero), else built from the field at ``occupancy_resolution``.
         early_stop: a ray stops once its transmittance is below this.
         segment: steps generated per ray per round (between early-termination checks).
         min_weight: samples with a smaller compositing weight get no radiance evaluation.
@@ -71,7 +72,10 @@ class VolumeRenderer:
         self.inv_s = default_inv_s(field) if self.kind == "sdf" else None
         if isinstance(occupancy, str):
             require(occupancy == "auto", f"occupancy must be None, an OccupancyGrid or 'auto', got {occupancy!r}")
-            occupancy = OccupancyGrid.from_field(field, occupancy_resolution, step=self.step)
+            provided = getattr(field, "occupancy_grid", None)  # a field's own grid (e.g. instant-ngp's)
+            occupancy = provided(occupancy_resolution) if callable(provided) else None
+            if occupancy is None:
+                occupancy = OccupancyGrid.from_field(field, occupancy_resolution, step=self.step)
         self.occupancy: OccupancyGrid | None = occupancy
         self.stats = {"geometry_points": 0, "radiance_points": 0, "rays": 0}
 
