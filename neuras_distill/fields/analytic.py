@@ -27,11 +27,13 @@ DEFAULT_BETA = 0.003
 def laplace_density(sdf: torch.Tensor, beta: float) -> torch.Tensor:
     """VolSDF density (N,) from signed distances (N,) (negative inside): σ = (1/β)·Laplace-CDF_β(−sdf).
 
-    Written as ``(0.5 + 0.5·sign(sdf)·expm1(−|sdf|/β)) / β``: σ -> 1/β deep inside, 1/(2β) on the surface,
-    (1/2β)·exp(−sdf/β) outside; never overflows or produces NaN for finite input.
+    Written per side with ``e = exp(−|sdf|/β)``: ``(1 − e/2)/β`` inside, ``(e/2)/β`` outside, so the outside
+    tail keeps its relative precision (no ``0.5 − 0.5·(1 − e)`` cancellation) and neither branch overflows.
+    σ -> 1/β deep inside, 1/(2β) on the surface, (1/2β)·exp(−sdf/β) outside.
     """
     sdf = sdf.float()
-    return (0.5 + 0.5 * torch.sign(sdf) * torch.expm1(-sdf.abs() / beta)) / beta
+    e = torch.exp(-sdf.abs() / beta)
+    return torch.where(sdf > 0, 0.5 * e, 1.0 - 0.5 * e) / beta
 
 
 class SDFToDensityField:

@@ -98,6 +98,7 @@ class NgpField(torch.nn.Module):
         self.surface_level = math.exp(NGP_MESH_LOG_DENSITY) * self.frame.scale
 
         self._occ = None  # (C, 128, 128, 128) bool, ngp axes
+        self._occupancy_cache: dict = {}
         if s.density_grid is not None:
             g = torch.from_numpy(s.density_grid)
             thresh = min(NGP_MIN_OPTICAL_THICKNESS, float(g[0].clamp_min(0).mean()))
@@ -177,6 +178,12 @@ class NgpField(torch.nn.Module):
         marks occupied (``samples``^3 probes per cell, then dilated by one cell), or None without a grid."""
         if self._occ is None:
             return None
+        key = (int(resolution), int(samples))
+        if key not in self._occupancy_cache:  # every renderer asks; the answer never changes
+            self._occupancy_cache[key] = self._resample_occupancy(*key)
+        return self._occupancy_cache[key]
+
+    def _resample_occupancy(self, resolution: int, samples: int) -> OccupancyGrid:
         r = int(resolution)
         lo, hi = self.aabb[0], self.aabb[1]
         cell = (hi - lo) / r

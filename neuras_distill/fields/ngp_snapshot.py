@@ -359,7 +359,8 @@ def _density_grid(snap: dict, aabb_scale: int, name: str, notes: list) -> np.nda
     else:
         raise BadInputError(f"{name}: density_grid_binary has {len(blob)} bytes; aabb_scale {aabb_scale} needs "
                             f"{2 * cells * cascades_needed} (fp16, {cascades_needed} cascades of {GRID_SIZE}^3)")
-    grid = np.where(np.isfinite(grid), grid, 0.0).astype(np.float32)
+    # fp16 storage turns optical thickness above 65504 into +inf: those are the densest cells, keep them
+    grid = np.nan_to_num(grid, nan=0.0, posinf=65504.0, neginf=-1.0).astype(np.float32)
     grid = grid.reshape(cascades_needed, cells)
     return morton_to_xyz(grid)
 

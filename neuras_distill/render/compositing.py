@@ -42,13 +42,16 @@ def transmittance_from_density(sigma: torch.Tensor, deltas: torch.Tensor) -> tor
 def alpha_from_sdf(sdf_prev: torch.Tensor, sdf_next: torch.Tensor, inv_s) -> torch.Tensor:
     """(..., S) NeuS discrete opacity of the intervals whose endpoint SDFs are ``sdf_prev``, ``sdf_next``.
 
-    ``alpha = max(1 - sigmoid(s f_next) / sigmoid(s f_prev), 0)`` computed as
-    ``-expm1(min(logsigmoid(s f_next) - logsigmoid(s f_prev), 0))``. ``inv_s`` (the paper's s) is a float
-    or a tensor broadcastable to the inputs.
+    ``alpha = max(1 - sigmoid(s f_next) / sigmoid(s f_prev), 0)`` computed through the exact identity
+    ``1 - sigmoid(b) / sigmoid(a) = (1 - exp(b - a)) * sigmoid(-b)`` as
+    ``-expm1(-s * max(f_prev - f_next, 0)) * sigmoid(-s f_next)``: no difference of two large numbers is
+    formed, so it stays within ~1e-6 relative of a 50-digit reference for s from 1 to 1e6 and |f| up to 1e3
+    (tests/test_sdf_opacity.py). ``inv_s`` (the paper's s) is a float or a tensor broadcastable to the inputs.
     """
     s = torch.as_tensor(inv_s, dtype=torch.float32)
-    d = F.logsigmoid(s * sdf_next.float()) - F.logsigmoid(s * sdf_prev.float())
-    return (-torch.expm1(d.clamp(max=0.0))).clamp(0.0, 1.0)
+    f_next = sdf_next.float()
+    drop = (sdf_prev.float() - f_next).clamp(min=0.0)
+    return (-torch.expm1(-s * drop) * torch.sigmoid(-s * f_next)).clamp(0.0, 1.0)
 
 
 def transmittance_from_alpha(alpha: torch.Tensor) -> torch.Tensor:
