@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 
+import mpmath
 import numpy as np
 import pytest
 import torch
@@ -22,7 +23,6 @@ import torch
 from neuras_distill.fields.analytic import laplace_density
 from neuras_distill.render.compositing import alpha_from_sdf
 
-mpmath = pytest.importorskip("mpmath")
 mpmath.mp.dps = 50
 
 EPS32 = float(np.finfo(np.float32).eps)

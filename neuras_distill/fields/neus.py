@@ -215,6 +215,16 @@ def _softplus(x: torch.Tensor) -> torch.Tensor:
     return F.softplus(x, beta=SOFTPLUS_BETA)
 
 
+def _mlp(h: torch.Tensor, layers, act) -> torch.Tensor:
+    """``h`` through ``layers`` [(weight, bias or None), ...] with ``act`` between layers (not after the last)."""
+    last = len(layers) - 1
+    for k, (w, b) in enumerate(layers):
+        h = F.linear(h, w, b)
+        if k < last:
+            h = act(h)
+    return h
+
+
 def _white(background_color) -> torch.Tensor:
     bg = torch.as_tensor((1.0, 1.0, 1.0) if background_color is None else background_color,
                          dtype=torch.float32).reshape(-1)
@@ -354,12 +364,7 @@ class NeuSField:
                       features: torch.Tensor) -> torch.Tensor:
         """NeuS ``RenderingNetwork`` ("idr"): (N, 3) each + (N, d_feature) -> (N, 3) in [0, 1]."""
         h = torch.cat([p, positional_encoding(view_dirs, self.multires_view), normals, features], dim=-1)
-        last = len(self._col_layers) - 1
-        for k, (w, b) in enumerate(self._col_layers):
-            h = F.linear(h, w, b)
-            if k < last:
-                h = torch.relu(h)
-        return torch.sigmoid(h)
+        return torch.sigmoid(_mlp(h, self._col_layers, torch.relu))
 
     def _local_sdf(self, p: torch.Tensor) -> torch.Tensor:
         f = self.sdf_network(p)[:, 0]
@@ -696,12 +701,7 @@ class HashGridNeuSField:
         h = self.encoding(x)
         if self.include_xyz:
             h = torch.cat([x * 2.0 - 1.0, h], dim=-1)
-        last = len(self._geo_layers) - 1
-        for k, (w, b) in enumerate(self._geo_layers):
-            h = F.linear(h, w, b)
-            if k < last:
-                h = self._geo_act(h)
-        return self._geo_out_act(h)
+        return self._geo_out_act(_mlp(h, self._geo_layers, self._geo_act))
 
     def texture_network(self, features: torch.Tensor, dirs: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
         """instant-nsr-pl ``VolumeRadiance``: (N, F), unit dirs (N, 3), unit normals (N, 3) -> (N, 3)."""

@@ -241,6 +241,16 @@ class HashGridConfig:
                 f"b={self.per_level_scale:.6f}, {self.interpolation}, n_params={self.n_params():,})")
 
 
+def _flat_params(params, n: int, what: str, hint: str = "") -> torch.Tensor:
+    """A detached float32 copy of ``params`` after checking it is a flat (n,) array (BadInputError if not)."""
+    if not isinstance(params, torch.Tensor):
+        params = torch.as_tensor(np.asarray(params))
+    params = params.detach()
+    require(params.ndim == 1 and params.numel() == n,
+            f"{what}: params must be a flat tensor of {n:,} values{hint}, got shape {tuple(params.shape)}")
+    return params.to(torch.float32).clone()
+
+
 class HashGridEncoding(torch.nn.Module):
     """TCNN multiresolution hash encoding: x (N, 3) in [0, 1]^3 network space -> (N, L*F) float32.
 
@@ -280,13 +290,7 @@ class HashGridEncoding(torch.nn.Module):
             # TCNN grid.h initialize_params: uniform in [-1e-4, 1e-4].
             params = torch.empty(n, dtype=torch.float32).uniform_(-1e-4, 1e-4)
         else:
-            if not isinstance(params, torch.Tensor):
-                params = torch.as_tensor(np.asarray(params))
-            params = params.detach()
-            require(params.ndim == 1 and params.numel() == n,
-                    f"hash grid {config}: params must be a flat tensor of {n:,} values (F * sum T_l), "
-                    f"got shape {tuple(params.shape)}")
-            params = params.to(torch.float32).clone()
+            params = _flat_params(params, n, f"hash grid {config}", " (F * sum T_l)")
         self.params = torch.nn.Parameter(params)
 
         scales = config.level_scales()
@@ -500,13 +504,7 @@ class TcnnMLP(torch.nn.Module):
                 chunks.append(torch.empty(o * i, dtype=torch.float32).uniform_(-a, a))
             params = torch.cat(chunks)
         else:
-            if not isinstance(params, torch.Tensor):
-                params = torch.as_tensor(np.asarray(params))
-            params = params.detach()
-            require(params.ndim == 1 and params.numel() == n,
-                    f"tcnn MLP {self._describe()}: params must be a flat tensor of {n:,} values, "
-                    f"got shape {tuple(params.shape)}")
-            params = params.to(torch.float32).clone()
+            params = _flat_params(params, n, f"tcnn MLP {self._describe()}")
         self.params = torch.nn.Parameter(params)
 
     def _describe(self) -> str:
