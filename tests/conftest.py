@@ -15,6 +15,19 @@ def fox_transforms() -> Path:
     return DATA / "fox_transforms.json"
 
 
+@pytest.fixture(autouse=True)
+def fixed_seeds():
+    """Every test sees the same random numbers on every run: a failure is reproducible, never a flake."""
+    import random
+
+    import numpy as np
+    import torch
+
+    random.seed(0)
+    np.random.seed(0)
+    torch.manual_seed(0)
+
+
 @pytest.fixture
 def one_torch_thread():
     """Small tensors: one torch thread is faster and immune to a busy shared CPU."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import random
 import struct
 import zlib
 from pathlib import Path
@@ -382,7 +383,7 @@ def test_cameras_sphere_round_trip(tmp_path):
 
 
 def test_cameras_sphere_bad_input(tmp_path):
-    (tmp_path / "rand.npz").write_bytes(os.urandom(300))
+    (tmp_path / "rand.npz").write_bytes(random.Random(0).randbytes(300))
     with pytest.raises(BadInputError, match="not a readable NeuS cameras"):
         cameras_from_neus_npz(tmp_path / "rand.npz", 10, 10)
     np.savez(tmp_path / "none.npz", foo=np.eye(4))
@@ -430,7 +431,7 @@ def _bad_files(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     torch.save(neus_ckpt(), tmp_path / "good.pth")
     data = (tmp_path / "good.pth").read_bytes()
     (tmp_path / "trunc.pth").write_bytes(data[: len(data) // 2])
-    (tmp_path / "rand.pth").write_bytes(os.urandom(2000))
+    (tmp_path / "rand.pth").write_bytes(random.Random(0).randbytes(2000))
     (tmp_path / "empty.pth").write_bytes(b"")
     (tmp_path / "dir.pth").mkdir()
     torch.save({"a": 1}, tmp_path / "legacy.pth", _use_new_zipfile_serialization=False)

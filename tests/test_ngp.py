@@ -9,7 +9,7 @@ from __future__ import annotations
 import gzip
 import json
 import math
-import os
+import random
 
 import msgpack
 import numpy as np
@@ -272,7 +272,8 @@ def _cli(args):
 def _bad_files(tmp_path):
     good = make_tree()
     files = {}
-    files["random bytes"] = os.urandom(5000)
+    files["random bytes"] = random.Random(0).randbytes(5000)
+    files["random map-like bytes"] = b"\x85" + random.Random(1).randbytes(5000)  # sniffs as a msgpack map
     full = gzip.compress(msgpack.packb(good, use_bin_type=True))
     files["truncated gzip"] = full[: len(full) // 2]
     files["empty"] = b""
@@ -297,7 +298,8 @@ def _bad_files(tmp_path):
 
 
 EXPECT = {
-    "random bytes": "not an Instant-NGP snapshot", "truncated gzip": "truncated", "empty": "empty",
+    "random bytes": "not an Instant-NGP snapshot", "random map-like bytes": "not an Instant-NGP snapshot",
+    "truncated gzip": "truncated", "empty": "empty",
     "no parameters": "no parameters", "absurd count": "n_params", "count vs config": "its configuration needs",
     "nan": "NaN", "sdf mode": "'sdf' snapshot", "frequency encoding": "Frequency", "3dgrut": "3DGRUT",
     "zip bomb": "decompresses to more than",

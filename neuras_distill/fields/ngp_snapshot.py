@@ -145,6 +145,9 @@ def read_snapshot_tree(path) -> dict:
     try:
         tree = msgpack.unpackb(data, raw=False, strict_map_key=False)
     except Exception as exc:  # noqa: BLE001 - msgpack raises many types for damaged input
+        if kind == "msgpack":  # uncompressed: only the first byte looked like a map, so it may be anything
+            raise BadInputError(f"{path} is not an Instant-NGP snapshot, or its msgpack data is damaged "
+                                f"({type(exc).__name__}); re-save it from instant-ngp") from None
         raise BadInputError(f"{path}: the snapshot's msgpack data is damaged or truncated "
                             f"({type(exc).__name__}); re-save it from instant-ngp") from None
     require(isinstance(tree, dict), f"{path} holds a msgpack {type(tree).__name__}, not an Instant-NGP snapshot")
