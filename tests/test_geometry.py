@@ -348,3 +348,52 @@ def test_extract_mesh_end_to_end():
     assert s["chart_count"] >= 1 and mesh.uvs is not None
     for step in ("marching_cubes", "clean", "decimate", "cull", "unwrap", "total"):
         assert s[f"seconds_{step}"] >= 0
+
+
+# ---------------------------------------------------------------------------------------------- cavities, roughness
+class ShellDensity:
+    """A NeRF-like density: high only in a shell 0.05 thick at radius 0.5, empty inside (as instant-ngp's
+    occupancy grid leaves an unseen interior), optionally with voxel-scale noise on the level set."""
+
+    kind = "density"
+
+    def __init__(self, noise=0.0):
+        self.noise = noise
+        self.aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+    def geometry(self, x):
+        r = x.norm(dim=-1)
+        if self.noise:
+            r = r + self.noise * torch.sin(157.0 * x[:, 0]) * torch.sin(163.0 * x[:, 1]) * torch.sin(151.0 * x[:, 2])
+        return 100.0 * ((r > 0.45) & (r < 0.5)).float()
+
+
+def test_enclosed_cavities_are_filled_so_one_surface_remains():
+    from neuras_distill.geometry.cleanup import face_components
+
+    mesh = marching_cubes_field(ShellDensity(), 64, level=50.0)
+    assert mesh.stats["mc_cavity_voxels"] > 0.8 * (4 / 3 * math.pi * 0.45 ** 3) / (2 / 63) ** 3
+    assert len(np.unique(face_components(mesh.faces, mesh.num_vertices))) == 1      # no inner shell
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    assert r.min() > 0.47 and r.max() < 0.53
+    assert signed_volume(mesh.vertices, mesh.faces) == pytest.approx(4 / 3 * math.pi * 0.5 ** 3, rel=0.1)  # solid, not a shell
+    # a surface cut open by the box is not a cavity: the sphere of radius 1.2 around the box stays hollow
+    big = marching_cubes_field(SphereSDF(radius=1.2, aabb=((-1, -1, -1), (1, 1, 1))), 32)
+    assert big.stats["mc_cavity_voxels"] == 0
+
+
+def test_rough_surfaces_are_measured_and_smoothed():
+    from neuras_distill.geometry.cleanup import ROUGH_FOLDED_FRACTION, smooth_rough
+    from neuras_distill.geometry.marching import folded_fraction
+
+    smooth = marching_cubes_field(SphereSDF(), 64)
+    assert smooth.stats["mc_folded_fraction"] < 1e-3
+    assert smooth_rough(smooth).stats["smoothing_steps"] == 0
+    rough = marching_cubes_field(ShellDensity(noise=0.03), 96, level=50.0)
+    assert rough.stats["mc_folded_fraction"] > ROUGH_FOLDED_FRACTION
+    done = smooth_rough(rough)
+    assert done.stats["smoothing_steps"] > 0
+    assert folded_fraction(done.vertices, done.faces) < 0.25 * rough.stats["mc_folded_fraction"]
+    # Taubin keeps the volume: nothing shrinks or disappears
+    v0, v1 = signed_volume(rough.vertices, rough.faces), signed_volume(done.vertices, done.faces)
+    assert v1 == pytest.approx(v0, rel=0.02)

@@ -11,7 +11,14 @@
   produces spikes (vertices leaving the input's box) or opens a closed mesh is redone with it off. When a pass
   overshoots the budget, further passes aim lower (at most ``max_passes``).
 
-Both keep the orientation (faces CCW seen from outside) and return a new :class:`MeshData` with stats.
+* :func:`smooth_rough`: Taubin smoothing (lambda/mu, volume preserving: no shrinking, nothing erased) of a
+  mesh whose marching-cubes surface was rough (``mc_folded_fraction`` above :data:`ROUGH_FOLDED_FRACTION`).
+  Rough voxel-scale bumps survive quadric decimation as folds that split xatlas charts: on the Instant-NGP
+  fixture (4.4% folded) 30 steps took the unwrap from 7,500 to 3,300 charts (with cavities filled). Blurring
+  the density grid instead was tried and dropped: in log space it erased the fixture's thin, weakly dense base
+  at a 64 grid (-6 dB), in linear space it dilated dense parts by voxels.
+
+All keep the orientation (faces CCW seen from outside) and return a new :class:`MeshData` with stats.
 """
 
 from __future__ import annotations
@@ -130,6 +137,32 @@ def clean_mesh(mesh: MeshData, *, min_component_fraction: float = 0.005) -> Mesh
     return MeshData(v.astype(np.float32), f.astype(np.int32), None, stats)
 
 
+# ---------------------------------------------------------------------------------------------- smoothing
+#: Share of folded adjacent face pairs above which a marching-cubes surface counts as rough.
+ROUGH_FOLDED_FRACTION = 0.01
+
+
+def smooth_rough(mesh: MeshData, *, steps: int = 30, threshold: float = ROUGH_FOLDED_FRACTION) -> MeshData:
+    """Taubin-smooth ``mesh`` when ``mesh.stats['mc_folded_fraction']`` exceeds ``threshold``.
+
+    Returns:
+        MeshData (same faces, moved vertices) with stats ``smoothing_steps`` (0 when left as is).
+    """
+    _require_mesh(mesh, "smooth")
+    stats = dict(mesh.stats)
+    if float(stats.get("mc_folded_fraction", 0.0) or 0.0) <= threshold or steps <= 0:
+        stats["smoothing_steps"] = 0
+        return MeshData(mesh.vertices, mesh.faces, mesh.uvs, stats)
+    ms = _to_meshset(mesh.vertices, mesh.faces)
+    ms.apply_coord_taubin_smoothing(stepsmoothnum=int(steps))
+    v, f = _from_meshset(ms)
+    if f.shape != mesh.faces.shape or not np.isfinite(v).all():   # pymeshlab keeps topology; be sure
+        stats["smoothing_steps"] = 0
+        return MeshData(mesh.vertices, mesh.faces, mesh.uvs, stats)
+    stats["smoothing_steps"] = int(steps)
+    return MeshData(v.astype(np.float32), mesh.faces, mesh.uvs, stats)
+
+
 # ---------------------------------------------------------------------------------------------- decimation
 def _check_budget(face_budget) -> int:
     if isinstance(face_budget, bool) or not isinstance(face_budget, (int, np.integer)) or face_budget < 4:
@@ -209,4 +242,4 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
     return MeshData(v.astype(np.float32), f.astype(np.int32), None, stats)
 
 
-__all__ = ["clean_mesh", "decimate", "face_components", "is_watertight"]
+__all__ = ["clean_mesh", "decimate", "smooth_rough", "ROUGH_FOLDED_FRACTION", "face_components", "is_watertight"]

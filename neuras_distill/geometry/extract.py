@@ -1,4 +1,5 @@
-"""The geometry stage: field -> textured-ready mesh (sample -> marching cubes -> clean -> decimate -> cull -> unwrap).
+"""The geometry stage: field -> textured-ready mesh (sample -> marching cubes -> clean -> smooth if rough ->
+decimate -> cull -> unwrap).
 
 Owns only the order of the steps and the stats they leave in ``MeshData.stats``; each step lives in its own
 module (grid, marching, cleanup, visibility, unwrap). Prints nothing.
@@ -8,7 +9,7 @@ from __future__ import annotations
 
 import time
 
-from .cleanup import clean_mesh, decimate
+from .cleanup import clean_mesh, decimate, smooth_rough
 from .marching import marching_cubes_field
 from .mesh import MeshData
 from .unwrap import unwrap
@@ -17,7 +18,8 @@ from .visibility import cull_unseen_faces
 
 def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
                  texture_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
-                 density_level: float | None = None, max_unwrap_faces: int = 200_000) -> MeshData:
+                 density_level: float | None = None, max_unwrap_faces: int = 200_000,
+                 choose_resolution=None) -> MeshData:
     """Extract, simplify, cull and unwrap the surface of ``field``.
 
     Args:
@@ -28,6 +30,9 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
         texture_resolution: side of the square atlas the distiller uses (uv layout and padding target it).
         unwrap_timeout_s: time limit per xatlas attempt.
         density_level: iso-level override for density fields.
+        choose_resolution: optional callable (unwrapped MeshData) -> atlas side; the mesh is first unwrapped
+            at ``texture_resolution``, then again at the chosen side when it differs (the padding is laid out
+            in texels of the final atlas). ``stats['uv_resolution']`` holds the side used.
 
     Returns:
         MeshData with uvs and ``stats``: ``faces_marching_cubes``, ``faces_after_clean``,
@@ -46,7 +51,7 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
     n_mc = mesh.num_faces
 
     t = time.perf_counter()
-    mesh = clean_mesh(mesh)
+    mesh = smooth_rough(clean_mesh(mesh))
     timings["clean"] = time.perf_counter() - t
     n_clean = mesh.num_faces
 
@@ -63,7 +68,12 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
         culled = int(mesh.stats.get("culled_faces", 0))
 
     t = time.perf_counter()
-    mesh = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=texture_resolution)
+    unwrapped = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=texture_resolution)
+    if choose_resolution is not None:
+        chosen = int(choose_resolution(unwrapped))
+        if chosen != int(texture_resolution):
+            unwrapped = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=chosen)
+    mesh = unwrapped
     timings["unwrap"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
 

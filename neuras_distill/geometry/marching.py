@@ -15,6 +15,15 @@ Owns the choice of iso-level, padding, orientation and the index-to-world mappin
   (measured with scikit-image 0.26: "descent" gives positive volume for an SDF, "ascent" for a density);
   the result is verified with the signed volume and flipped if a future version disagrees.
 * Vertices: ``world = origin + index * spacing`` (scikit-image returns index space times ``spacing`` only).
+* Enclosed cavities are filled before meshing (:func:`fill_cavities`): a trained NeRF's density is often high
+  only in a thin shell at the surface (the inside is never seen, and Instant-NGP's occupancy grid empties it),
+  which meshes as two surfaces a voxel apart. Decimation then folds one into the other (measured on the
+  Instant-NGP fixture: 38% of adjacent face pairs folded over, 7,500 UV charts for 20k faces). A cavity no
+  ray can reach contributes nothing to any render, so filling it changes no image.
+* Roughness is measured (:func:`folded_fraction`: the share of adjacent face pairs whose normals are more than
+  90 degrees apart, ``stats['mc_folded_fraction']``); the geometry stage smooths rough meshes
+  (``cleanup.smooth_rough``). A trained field's level set is often rough at the voxel scale (hash-grid noise):
+  4.4% on the Instant-NGP fixture, ~0 on analytic and NeuS fields.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import time
 from typing import Sequence
 
 import numpy as np
+from scipy import ndimage
 from skimage import measure
 
 from ..errors import BadInputError
@@ -71,8 +81,51 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
+def folded_fraction(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Share of interior edges whose two faces' normals are more than 90 degrees apart (0 for a smooth mesh)."""
+    if faces.shape[0] < 2:
+        return 0.0
+    v = vertices.astype(np.float64)
+    f = faces.astype(np.int64)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    owner = np.tile(np.arange(f.shape[0]), 3)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    edges, owner = edges[order], owner[order]
+    pair = (edges[1:] == edges[:-1]).all(axis=1)
+    if not pair.any():
+        return 0.0
+    cos = np.einsum("ij,ij->i", n[owner[:-1][pair]], n[owner[1:][pair]])
+    return float((cos < 0).mean())
+
+
+def fill_cavities(values: np.ndarray, level: float, outward: float) -> tuple[np.ndarray, int]:
+    """Fill regions on the outside side of ``level`` that are enclosed by inside voxels.
+
+    Args:
+        values: (R0, R1, R2) grid; a voxel is inside when ``(values - level) * outward < 0``.
+        outward: +1 when values grow outwards (SDF), -1 when they fall outwards (log density).
+
+    Returns:
+        (grid with every enclosed outside voxel set to the grid's most-inside value, number of voxels filled).
+        Regions touching the grid's border count as the true outside (the grid is padded with outside values
+        before meshing), so surfaces cut by the box are unaffected.
+    """
+    inside = (values - np.float32(level)) * np.float32(outward) < 0
+    if not inside.any():
+        return values, 0
+    enclosed = ndimage.binary_fill_holes(inside) & ~inside
+    count = int(enclosed.sum())
+    if count == 0:
+        return values, 0
+    filled = values.copy()
+    filled[enclosed] = values.min() if outward > 0 else values.max()
+    return filled, count
+
+
 def marching_cubes_grid(grid: np.ndarray, origin: Sequence[float], spacing: Sequence[float], kind: str,
-                        level: float) -> MeshData:
+                        level: float, *, fill: bool = True) -> MeshData:
     """Marching cubes on a sampled grid (R0, R1, R2) -> MeshData in world units (see module docstring).
 
     ``grid[i, j, k]`` is the field at ``origin + (i, j, k) * spacing``. Density grids are meshed in log space
@@ -80,6 +133,7 @@ def marching_cubes_grid(grid: np.ndarray, origin: Sequence[float], spacing: Sequ
     density tails (VolSDF/Laplace, trunc_exp NeRF densities) instead of biased outwards by linear interpolation
     (measured on a Laplace sphere with beta = 0.2 voxel: +0.41 voxel linear, +0.23 voxel log).
     The padding value is far beyond the level, so surfaces cut by the box are capped on the box face.
+    ``fill``: fill enclosed cavities first (:func:`fill_cavities`); ``stats['mc_cavity_voxels']`` counts them.
     """
     lo, hi = float(grid.min()), float(grid.max())
     if not (lo < level < hi):
@@ -99,6 +153,9 @@ def marching_cubes_grid(grid: np.ndarray, origin: Sequence[float], spacing: Sequ
     else:
         values, mc_level, outward = grid, float(level), 1.0
     vlo, vhi = float(values.min()), float(values.max())
+    cavity_voxels = 0
+    if fill:
+        values, cavity_voxels = fill_cavities(values, mc_level, outward)
     mc_level = nudge_level(values, mc_level)
     pad = mc_level + outward * min(1e4 * (vhi - vlo + abs(mc_level) + 1.0), 1e30)
     padded = np.pad(values, 1, mode="constant", constant_values=np.float32(pad))
@@ -116,7 +173,7 @@ def marching_cubes_grid(grid: np.ndarray, origin: Sequence[float], spacing: Sequ
     faces = faces.astype(np.int64)
     if signed_volume(verts, faces) < 0:  # defensive: keep CCW-from-outside whatever the library does
         faces = faces[:, ::-1]
-    return MeshData(verts.astype(np.float32), faces.astype(np.int32))
+    return MeshData(verts.astype(np.float32), faces.astype(np.int32), None, {"mc_cavity_voxels": cavity_voxels})
 
 
 def marching_cubes_field(field, resolution: int | Sequence[int], level: float | None = None, *,
@@ -132,7 +189,8 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
 
     Returns:
         MeshData (vertices (V, 3) float32 world, faces (F, 3) int32 CCW from outside) with ``stats``: grid
-        shape/spacing, ``mc_level``, ``mc_faces``, ``grid_nonfinite``, timings.
+        shape/spacing, ``mc_level``, ``mc_faces``, ``grid_nonfinite``, ``mc_cavity_voxels``,
+        ``mc_folded_fraction``, timings.
 
     Raises:
         BadInputError: the field has no surface inside its box at that level.
@@ -154,10 +212,11 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
             stats["mc_level_rule"] = f"min(ln2/step, 0.5*max) with step={step:.6g}"
     t0 = time.perf_counter()
     mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, float(level))
+    stats.update(mesh.stats, mc_folded_fraction=folded_fraction(mesh.vertices, mesh.faces))
     stats.update(mc_level=float(level), mc_faces=mesh.num_faces, mc_vertices=mesh.num_vertices,
                  mc_seconds=time.perf_counter() - t0, voxel_size=float(spec.spacing.max()))
     mesh.stats = stats
     return mesh
 
 
-__all__ = ["marching_cubes_field", "marching_cubes_grid", "density_level", "nudge_level", "signed_volume"]
+__all__ = ["marching_cubes_field", "marching_cubes_grid", "fill_cavities", "folded_fraction", "density_level", "nudge_level", "signed_volume"]
