@@ -9,8 +9,17 @@ Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature
     codebook.npy         float32 (K, ceil(D/4), 4), zero padded
     shader.frag          the generated fragment shader
     shader.vert          only when the bundle carries a vertex shader
+    sky_index.png        only with skyboxes: 16-bit PNG of the skybox atlas's code indices
+    sky_codebook.npy     only with skyboxes: float32 (K_sky, ceil(D/4), 4)
+    sky.frag             only with skyboxes: the skybox pass's fragment shader (``bake/glsl_sky.py``)
 
-Textures are named by the sampler they bind to: ``u_index`` (uint16 (H, W)) and ``u_codebook``.
+Textures are named by the sampler they bind to: ``u_index`` (uint16 (H, W)) and ``u_codebook``, and with
+skyboxes ``u_sky_index`` and ``u_sky_codebook``.
+
+Precision: mesh vertices are stored relative to ``manifest["origin"]`` (float64 world position of the scene
+centre, [0, 0, 0] for bundles baked without one); the renderer subtracts it from camera positions in float64,
+so a scene kilometres from its world origin plays with float32 precision around its own centre. The skybox
+layers (``manifest["skybox"]``) carry their own float64 centre.
 """
 
 from __future__ import annotations
@@ -29,9 +38,11 @@ from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
 
 FORMAT = "neuras-bundle"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 MAX_CODES = 65535
 FILES = ("manifest.json", "mesh.npz", "feature_index.png", "codebook.npy", "shader.frag")
+SKY_FILES = ("sky_index.png", "sky_codebook.npy", "sky.frag")
 
 
 def float16_feature_nbytes(height: int, width: int, dim: int) -> int:
@@ -50,6 +61,8 @@ class Bundle:
         background_color: (3,) float32 clear colour.
         manifest: dict (format, sizes, model settings, ...; ``save`` adds file hashes).
         vertex_shader: optional GLSL source saved as shader.vert (the playback stage owns it).
+        sky_fragment_shader: the skybox pass's GLSL source, or None for a bundle without skyboxes (then
+            ``textures`` has no ``u_sky_*`` entries and ``manifest`` no ``skybox``).
     """
 
     mesh: MeshData
@@ -58,6 +71,16 @@ class Bundle:
     background_color: np.ndarray
     manifest: dict = field(default_factory=dict)
     vertex_shader: str | None = None
+    sky_fragment_shader: str | None = None
+
+    @property
+    def origin(self) -> np.ndarray:
+        """(3,) float64 world position the mesh vertices are relative to."""
+        return np.asarray(self.manifest.get("origin", (0.0, 0.0, 0.0)), dtype=np.float64).reshape(3)
+
+    @property
+    def has_skybox(self) -> bool:
+        return self.sky_fragment_shader is not None
 
     def __post_init__(self) -> None:
         self.background_color = np.asarray(self.background_color, dtype=np.float32).reshape(3)
@@ -77,6 +100,12 @@ class Bundle:
         files["shader.frag"] = self.fragment_shader.encode("utf-8")
         if self.vertex_shader is not None:
             files["shader.vert"] = self.vertex_shader.encode("utf-8")
+        if self.has_skybox:
+            files["sky_index.png"] = _encode_png16(self.textures["u_sky_index"])
+            buf = io.BytesIO()
+            np.save(buf, np.ascontiguousarray(self.textures["u_sky_codebook"], dtype=np.float32), allow_pickle=False)
+            files["sky_codebook.npy"] = buf.getvalue()
+            files["sky.frag"] = self.sky_fragment_shader.encode("utf-8")
         manifest = dict(self.manifest)
         manifest.update(format=FORMAT, format_version=FORMAT_VERSION,
                         background_color=[float(x) for x in self.background_color],
@@ -97,9 +126,10 @@ class Bundle:
         return sum(len(v) for v in self._encode().values())
 
     def feature_nbytes(self) -> int:
-        """Bytes of the feature data on disk: index PNG + codebook.npy."""
+        """Bytes of the feature data on disk: index PNGs + codebooks (mesh atlas and, if any, skyboxes)."""
         files = self._encode()
-        return len(files["feature_index.png"]) + len(files["codebook.npy"])
+        return sum(len(files[k]) for k in ("feature_index.png", "codebook.npy", "sky_index.png", "sky_codebook.npy")
+                   if k in files)
 
     def float16_nbytes(self) -> int:
         """Bytes the same atlas would take unquantized in float16 (H * W * D * 2), for the compression ratio."""
@@ -110,7 +140,7 @@ class Bundle:
 def _encode_png16(index: np.ndarray) -> bytes:
     a = np.ascontiguousarray(index)
     if a.dtype != np.uint16 or a.ndim != 2:
-        raise ValueError(f"u_index must be a uint16 (H, W) array, got {a.dtype} {a.shape}")
+        raise ValueError(f"an index map must be a uint16 (H, W) array, got {a.dtype} {a.shape}")
     buf = io.BytesIO()
     Image.fromarray(a).save(buf, format="PNG", compress_level=9)
     data = buf.getvalue()
@@ -131,22 +161,33 @@ def _decode_png16(data: bytes) -> np.ndarray:
     return a
 
 
-def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = None,
-         vertex_shader: str | None = None) -> Bundle:
-    """Turn a trained ``NeuralTextureModel`` and its mesh into a :class:`Bundle`.
-
-    Codes never referenced by the index map are dropped (``manifest["num_codes"]`` is the kept count,
-    ``num_codes_trained`` the codebook size during training).
-    """
-    if mesh.uvs is None:
-        raise BadInputError("bake: the mesh has no UVs; unwrap it before baking")
-    index, codebook = model.baked_features()
+def _baked_textures(atlas_model) -> tuple[np.ndarray, np.ndarray]:
+    """(uint16 index map (H, W), float32 codebook (K, C4, 4)) of a NeuralTextureModel's atlas."""
+    index, codebook = atlas_model.baked_features()
     k, dim = codebook.shape
     if k > MAX_CODES:
         raise BadInputError(f"bake: {k} codes do not fit a uint16 index texture (at most {MAX_CODES})")
     c4 = (dim + 3) // 4
     cb = np.zeros((k, c4 * 4), np.float32)
     cb[:, :dim] = codebook
+    return index.astype(np.uint16), cb.reshape(k, c4, 4)
+
+
+def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = None,
+         vertex_shader: str | None = None, skybox=None, origin=None) -> Bundle:
+    """Turn a trained ``NeuralTextureModel`` and its mesh into a :class:`Bundle`.
+
+    Codes never referenced by the index map are dropped (``manifest["num_codes"]`` is the kept count,
+    ``num_codes_trained`` the codebook size during training). ``skybox``: a trained :class:`SkyboxModel` to
+    bake alongside (its own codebook, pruned the same way, and the ``sky.frag`` pass). ``origin``: (3,)
+    float64 world position the mesh vertices are relative to (default the origin).
+    """
+    if mesh.uvs is None:
+        raise BadInputError("bake: the mesh has no UVs; unwrap it before baking")
+    index, cb = _baked_textures(model)
+    k, dim = cb.shape[0], int(model.feature_dim)
+    textures = {"u_index": index, "u_codebook": cb}
+    sky_shader = None
     manifest = {
         "texture_width": int(model.tex_width), "texture_height": int(model.tex_height),
         "feature_dim": int(dim), "num_codes": int(k), "num_codes_trained": int(model.num_codes),
@@ -154,12 +195,23 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
         "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
         "mesh_vertices": int(mesh.num_vertices), "mesh_faces": int(mesh.num_faces),
         "float16_feature_bytes": float16_feature_nbytes(model.tex_height, model.tex_width, dim),
+        "origin": [float(x) for x in (np.zeros(3) if origin is None else np.asarray(origin, np.float64).reshape(3))],
     }
+    if skybox is not None:
+        from neuras_distill.bake.glsl_sky import generate_sky_fragment_shader
+
+        sky_index, sky_cb = _baked_textures(skybox.atlas)
+        textures.update(u_sky_index=sky_index, u_sky_codebook=sky_cb)
+        sky_shader = generate_sky_fragment_shader(skybox)
+        sky_h, sky_w = skybox.layers.atlas_size
+        manifest["skybox"] = dict(skybox.layers.to_json(), num_codes=int(sky_cb.shape[0]),
+                                  num_codes_trained=int(skybox.atlas.num_codes), feature_dim=int(skybox.feature_dim),
+                                  mlp_hidden=int(skybox.shader.hidden), atlas_size=[sky_h, sky_w],
+                                  float16_feature_bytes=float16_feature_nbytes(sky_h, sky_w, skybox.feature_dim))
     manifest.update(extra_manifest or {})
-    return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs),
-                  textures={"u_index": index.astype(np.uint16), "u_codebook": cb.reshape(k, c4, 4)},
+    return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs), textures=textures,
                   fragment_shader=generate_fragment_shader(model), background_color=background_color,
-                  manifest=manifest, vertex_shader=vertex_shader)
+                  manifest=manifest, vertex_shader=vertex_shader, sky_fragment_shader=sky_shader)
 
 
 def load_bundle(directory) -> Bundle:
@@ -176,9 +228,9 @@ def load_bundle(directory) -> Bundle:
         raise BadInputError(f"bundle {d}: manifest.json is not valid JSON ({exc})") from exc
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise BadInputError(f"bundle {d}: manifest.json is not a {FORMAT} manifest")
-    if manifest.get("format_version") != FORMAT_VERSION:
+    if manifest.get("format_version") not in READABLE_VERSIONS:
         raise BadInputError(f"bundle {d}: format version {manifest.get('format_version')} is not supported "
-                            f"(this version reads {FORMAT_VERSION})")
+                            f"(this version reads {', '.join(map(str, READABLE_VERSIONS))})")
     raw = {}
     for name, info in (manifest.get("files") or {}).items():
         p = d / name
@@ -187,7 +239,8 @@ def load_bundle(directory) -> Bundle:
         raw[name] = p.read_bytes()
         if hashlib.sha256(raw[name]).hexdigest() != info.get("sha256"):
             raise BadInputError(f"bundle {d}: {name} is corrupt (checksum differs from manifest.json)")
-    for name in FILES[1:]:
+    needed = FILES[1:] + (SKY_FILES if "skybox" in manifest else ())
+    for name in needed:
         if name not in raw:
             raise BadInputError(f"bundle {d}: manifest.json does not list {name}")
 
@@ -222,9 +275,22 @@ def load_bundle(directory) -> Bundle:
     try:
         frag = raw["shader.frag"].decode("utf-8")
         vert = raw["shader.vert"].decode("utf-8") if "shader.vert" in raw else None
+        sky_frag = raw["sky.frag"].decode("utf-8") if "skybox" in manifest else None
     except UnicodeDecodeError as exc:
         raise corrupt("shader", exc) from exc
+    textures = {"u_index": index, "u_codebook": codebook}
+    if "skybox" in manifest:
+        try:
+            textures["u_sky_index"] = _decode_png16(raw["sky_index.png"])
+            textures["u_sky_codebook"] = np.load(io.BytesIO(raw["sky_codebook.npy"]), allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001
+            raise corrupt("the skybox textures", exc) from exc
+        sky = manifest["skybox"]
+        if list(textures["u_sky_index"].shape) != list(sky.get("atlas_size", [])) or \
+                textures["u_sky_codebook"].shape[0] != sky.get("num_codes") or \
+                int(textures["u_sky_index"].max(initial=0)) >= textures["u_sky_codebook"].shape[0]:
+            raise BadInputError(f"bundle {d}: the skybox textures do not match manifest.json")
     bg = manifest.get("background_color")
     manifest = {k: v for k, v in manifest.items() if k not in ("format", "format_version", "files", "background_color")}
-    return Bundle(mesh=mesh, textures={"u_index": index, "u_codebook": codebook}, fragment_shader=frag,
-                  background_color=np.asarray(bg, np.float32), manifest=manifest, vertex_shader=vert)
+    return Bundle(mesh=mesh, textures=textures, fragment_shader=frag, background_color=np.asarray(bg, np.float32),
+                  manifest=manifest, vertex_shader=vert, sky_fragment_shader=sky_frag)

@@ -17,6 +17,10 @@ Decisions:
   codebook is k-means-initialised from the touched texels and the model is quantized from there on.
 - Touched texels are recorded all along; at the end untouched texels get the nearest touched feature
   (:meth:`NeuralTextureModel.fill_unseen_texels`).
+- Skyboxes (optional ``skybox``): patches are then centred on any pixel, every pixel of a patch counts, and
+  pixels the mesh does not cover are coloured by the :class:`SkyboxModel` from the view's camera centre and
+  the pixel's direction. The skybox atlas joins the sparse optimiser, its shader and codebook the dense one;
+  its quantizer starts with the mesh's.
 """
 
 from __future__ import annotations
@@ -58,6 +62,7 @@ class TrainLog:
     vq_stats: dict = field(default_factory=dict)
     touched_fraction: float = 0.0
     filled_texels: int = 0
+    sky_touched_fraction: float | None = None
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -77,7 +82,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         texture_lr: float | None = None, batch_patches: int = 32, patch: int = 16, ssim_weight: float = 0.2,
         vq_weight: float = 1.0, vq_warmup: float = 0.15, lr_final_ratio: float = 0.1,
         time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
-        seed: int = 0, num_threads: int | None = None) -> TrainLog:
+        seed: int = 0, num_threads: int | None = None, skybox=None, origins=None) -> TrainLog:
     """Train ``model`` on teacher images.
 
     Args:
@@ -90,6 +95,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         log_every: steps between log entries (default steps // 50).
         num_threads: torch intra-op threads during the loop (restored after); None leaves torch's setting.
             On a busy shared CPU, 1 thread avoids OpenMP oversubscription (measured 108 vs 1.8 steps/s).
+        skybox: optional :class:`SkyboxModel` trained jointly on the pixels the mesh does not cover.
+        origins: (N, 3) float32 camera centres relative to ``skybox.layers.center`` (required with skybox).
     Returns:
         :class:`TrainLog`. The model is left in eval mode with untouched texels filled.
     """
@@ -105,6 +112,13 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     covered = torch.nonzero(cov_f).flatten()
     if covered.numel() == 0:
         raise BadInputError("fit: no pixel is covered by the mesh in any training view")
+    if skybox is not None:
+        if origins is None:
+            raise BadInputError("fit: a skybox needs the camera centres (origins) of the training views")
+        origins_t = torch.as_tensor(np.asarray(origins, dtype=np.float32)).reshape(-1, 3)
+        if origins_t.shape[0] != lead[0]:
+            raise BadInputError(f"fit: origins has {origins_t.shape[0]} rows for {lead[0]} views")
+        covered = torch.arange(cov_f.numel())            # patches anywhere: the sky is trained too
     uv_f, dirs_f, tgt_f = uv_t.reshape(-1, 2), dirs_t.reshape(-1, 3), tgt_t.reshape(-1, 3)
 
     p = int(max(1, min(patch, h, w)))
@@ -118,6 +132,11 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     dense_groups = [{"params": list(model.shader.parameters()), "lr": lr}]
     if model.vq is not None:
         dense_groups.append({"params": [model.vq.codebook], "lr": lr})
+    models = [model]
+    if skybox is not None:
+        tex_params.append(skybox.atlas.texture.data)
+        dense_groups.append({"params": skybox.dense_parameters(), "lr": lr})
+        models.append(skybox.atlas)
     if model.sparse_grad:
         opt_tex = torch.optim.SparseAdam(tex_params, lr=texture_lr)
     else:
@@ -130,7 +149,10 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     if num_threads is not None:
         torch.set_num_threads(int(num_threads))
     model.train()
-    model.record_touched = True
+    if skybox is not None:
+        skybox.train()
+    for m_ in models:
+        m_.record_touched = True
     bar = tqdm(total=steps, file=sys.stderr, disable=not progress, desc="distill", leave=False)
     t0 = time.perf_counter()
     step = 0
@@ -144,7 +166,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
                     break
                 frac = max(frac, elapsed / time_budget_s)
             if model.use_vq and not model.quantizing and frac >= vq_warmup:
-                model.start_vq()
+                for m_ in models:
+                    m_.start_vq()
                 log.vq_start_step = step
             decay = lr_final_ratio ** min(frac, 1.0)
             for o, bases in zip((opt_tex, opt), base_lrs):
@@ -165,8 +188,16 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             sel = torch.nonzero(m).flatten()
             tgt = tgt_f[pix]
             rgb, aux = model(uv_f[pix[sel]], dirs_f[pix[sel]])
+            vq_loss = aux["vq_loss"]
+            if skybox is not None:                    # every pixel counts: mesh where covered, sky elsewhere
+                sky = torch.nonzero(~m).flatten()
+                sky_rgb, sky_aux = skybox(origins_t[view].repeat_interleave(p * p, dim=0)[sky], dirs_f[pix[sky]])
+                rgb = torch.empty(pix.numel(), 3, dtype=rgb.dtype).index_put((sel,), rgb).index_put((sky,), sky_rgb)
+                sel = torch.arange(pix.numel())
+                m = torch.ones_like(m)
+                vq_loss = vq_loss + sky_aux["vq_loss"]
             l2 = torch.mean((rgb - tgt[sel]) ** 2)
-            loss = l2 + vq_weight * aux["vq_loss"]
+            loss = l2 + vq_weight * vq_loss
             if use_ssim:
                 full = tgt.index_put((sel,), rgb)
                 a = full.view(batch_patches, p, p, 3).permute(0, 3, 1, 2)
@@ -193,15 +224,21 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         bar.close()
         torch.set_num_threads(old_threads)
         log.seconds = time.perf_counter() - t0
-        model.record_touched = False
+        for m_ in models:
+            m_.record_touched = False
     log.steps = step
     log.steps_per_second = step / max(log.seconds, 1e-9)
     if model.use_vq and not model.quantizing:      # stopped before the warm-up ended: quantize anyway
-        model.start_vq()
+        for m_ in models:
+            m_.start_vq()
         log.vq_start_step = step
     if model.vq is not None:
         log.vq_stats = model.vq.stats()
     log.touched_fraction = float(model.touched.float().mean())
     log.filled_texels = model.fill_unseen_texels()
     model.eval()
+    if skybox is not None:
+        log.sky_touched_fraction = float(skybox.atlas.touched.float().mean())
+        skybox.atlas.fill_unseen_texels()
+        skybox.eval()
     return log

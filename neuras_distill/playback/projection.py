@@ -103,6 +103,20 @@ def camera_near_far(bounds, cameras, i: int) -> tuple[float, float]:
     return near_far_for(bounds, c2w[:3, 3], c2w)
 
 
+def shift_cameras(cameras, offset):
+    """``cameras`` with every centre moved by ``-offset`` (3,) (computed in float64): the cameras in a frame
+    centred on ``offset``, e.g. a bundle's origin, so GL works on small float32 coordinates."""
+    from ..render.cameras import Cameras
+
+    offset = np.asarray(offset, dtype=np.float64).reshape(3)
+    if not offset.any():
+        return cameras
+    c2w = cameras.c2w.double().numpy().copy()
+    c2w[:, :3, 3] -= offset
+    return Cameras(c2w.astype(np.float32), cameras.fx, cameras.fy, cameras.cx, cameras.cy, cameras.width,
+                   cameras.height)
+
+
 def gl_matrix(m) -> bytes:
     """Bytes of a (4, 4) matrix as a GLSL ``mat4`` uniform expects (column-major float32)."""
     return np.ascontiguousarray(np.asarray(m, dtype=np.float64).T, dtype=np.float32).tobytes()

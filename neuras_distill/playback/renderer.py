@@ -6,6 +6,13 @@ cleared to ``bundle.background_color``. Texture binding follows docs/architectur
 ``bundle.textures`` (uniform name -> array) becomes a NEAREST, mipmap-free texture bound to the sampler of that
 name; uint16 arrays -> R16UI..RGBA16UI (``usampler2D``), float32 arrays -> R32F..RGBA32F (``sampler2D``),
 row 0 of the array = v = 0 (uploaded as is). Uniforms the compiled program optimised out are skipped.
+
+Cameras are given in world coordinates; the renderer moves them into the bundle's frame (``bundle.origin``
+subtracted in float64) before building matrices. A bundle with skyboxes is drawn in two passes: first a
+full-screen triangle with ``bundle.sky_fragment_shader`` (depth test off, so it writes no depth; uniforms
+``u_sky_origin`` = camera centre relative to the skybox centre, ``u_cam_rot``, ``u_intrinsics``,
+``u_height``), then the mesh on top. ``render(..., skybox=False)`` leaves the sky pass out (the ablation
+"without skyboxes": uncovered pixels get the clear colour).
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from .context import get_context
-from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for
+from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for, shift_cameras
 from .rasterize import _check_mesh, mesh_vertex_array, set_raster_state
 from .shaders import VERTEX_SHADER
 
@@ -62,6 +69,20 @@ class BundleRenderer:
         except moderngl.Error as exc:
             raise BadInputError(f"the bundle's fragment shader does not compile or link: {exc}") from None
         self._resources.append(self.program)
+        self.origin = np.asarray(getattr(bundle, "origin", np.zeros(3)), np.float64).reshape(3)
+        self.sky_program = self.sky_vao = None
+        self.sky_center = None
+        if getattr(bundle, "sky_fragment_shader", None):
+            from ..bake.glsl_sky import SKY_VERTEX_SHADER
+
+            try:
+                self.sky_program = self.ctx.program(vertex_shader=SKY_VERTEX_SHADER,
+                                                     fragment_shader=bundle.sky_fragment_shader)
+            except moderngl.Error as exc:
+                raise BadInputError(f"the bundle's skybox shader does not compile or link: {exc}") from None
+            self.sky_vao = self.ctx.vertex_array(self.sky_program, [])
+            self._resources += [self.sky_program, self.sky_vao]
+            self.sky_center = np.asarray(bundle.manifest["skybox"]["center"], np.float64).reshape(3)
         self.vao = None
         if mesh.num_faces:
             self.vao, bufs = mesh_vertex_array(self.ctx, self.program, mesh)
@@ -78,8 +99,9 @@ class BundleRenderer:
             tex.repeat_x = tex.repeat_y = False
             self._resources.append(tex)
             self._textures.append((unit, tex))
-            if name in self.program:
-                self.program[name].value = unit
+            for program in (self.program, self.sky_program):
+                if program is not None and name in program:
+                    program[name].value = unit
 
     # ------------------------------------------------------------------ internals
     def _fbo(self, width: int, height: int):
@@ -92,6 +114,7 @@ class BundleRenderer:
         return self._fbo_cache[key][0]
 
     def _set_camera(self, cameras, i: int) -> None:
+        """``cameras`` are already in the bundle's frame (see :meth:`_draw`)."""
         near, far = camera_near_far(self._bounds, cameras, i)
         if "u_mvp" in self.program:
             self.program["u_mvp"].write(gl_matrix(mvp_for(cameras, i, near, far)))
@@ -103,24 +126,42 @@ class BundleRenderer:
         """Whether the bundle was trained (and so plays) with back faces culled (manifest ``cull_back_faces``)."""
         return bool((getattr(self.bundle, "manifest", None) or {}).get("cull_back_faces", False))
 
-    def _draw(self, cameras, i: int):
+    def _draw_sky(self, world_cameras, i: int) -> None:
+        p = self.sky_program
+        c2w = world_cameras.c2w[i].double().numpy()
+        if "u_sky_origin" in p:
+            p["u_sky_origin"].value = tuple(float(x) for x in c2w[:3, 3] - self.sky_center)
+        if "u_cam_rot" in p:
+            p["u_cam_rot"].value = tuple(float(x) for x in c2w[:3, :3].T.reshape(-1))  # column-major
+        if "u_intrinsics" in p:
+            p["u_intrinsics"].value = (float(world_cameras.fx[i]), float(world_cameras.fy[i]),
+                                       float(world_cameras.cx[i]), float(world_cameras.cy[i]))
+        if "u_height" in p:
+            p["u_height"].value = float(world_cameras.height)
+        self.ctx.disable(self._mgl.DEPTH_TEST | self._mgl.CULL_FACE)
+        self.sky_vao.render(self._mgl.TRIANGLES, vertices=3)
+
+    def _draw(self, cameras, i: int, skybox: bool = True):
         mgl = self._mgl
         fbo = self._fbo(int(cameras.width), int(cameras.height))
         fbo.use()
-        set_raster_state(self.ctx, self.cull_back_faces)
         fbo.clear(*self.background, 1.0, depth=1.0)
+        for unit, tex in self._textures:
+            tex.use(location=unit)
+        if skybox and self.sky_program is not None:
+            self._draw_sky(cameras, i)
+        set_raster_state(self.ctx, self.cull_back_faces)
         if self.vao is not None:
-            self._set_camera(cameras, i)
-            for unit, tex in self._textures:
-                tex.use(location=unit)
+            self._set_camera(shift_cameras(cameras, self.origin), i)
             self.vao.render(mgl.TRIANGLES)
         return fbo
 
     # ------------------------------------------------------------------ public
-    def render(self, cameras, i: int) -> np.ndarray:
-        """(H, W, 3) float32 image in [0, 1] of camera ``i`` (row 0 = top), quantised to 8 bits like a display."""
+    def render(self, cameras, i: int, skybox: bool = True) -> np.ndarray:
+        """(H, W, 3) float32 image in [0, 1] of world camera ``i`` (row 0 = top), quantised to 8 bits like a
+        display. ``skybox=False`` leaves the skybox pass out (uncovered pixels get the clear colour)."""
         h, w = int(cameras.height), int(cameras.width)
-        fbo = self._draw(cameras, i)
+        fbo = self._draw(cameras, i, skybox)
         data = np.frombuffer(fbo.read(components=3, alignment=1, dtype="f1"), np.uint8).reshape(h, w, 3)[::-1]
         return data.astype(np.float32) / 255.0
 
