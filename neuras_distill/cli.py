@@ -21,6 +21,8 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
     p.add_argument("--texture-resolution", type=int, default=None, help="side of the feature atlas in texels")
     p.add_argument("--view-dependence", choices=["auto", "on", "off"], default=None,
                    help="view-direction input of the shader (auto: decided from the field)")
+    p.add_argument("--skyboxes", choices=["auto", "on", "off"], default=None,
+                   help="neural skyboxes for what lies beyond the mesh (auto: decided from the field and cameras)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -85,6 +87,8 @@ def _config_from_args(args):
         overrides.setdefault("texture", {})["resolution"] = args.texture_resolution
     if args.view_dependence is not None:
         overrides.setdefault("texture", {})["view_dependence"] = args.view_dependence
+    if args.skyboxes is not None:
+        overrides.setdefault("skybox", {})["mode"] = args.skyboxes
     return load_config(preset=args.preset, path=args.config, overrides=overrides)
 
 
@@ -94,6 +98,8 @@ def _run_scene(args, name: str) -> int:
     from .pipeline.rundir import check_output_folder
     from pathlib import Path
 
+    if name == "street" and args.preset is None and args.config is None:
+        args.preset = "street"          # its preset fits the scene to this machine (configs/street.toml)
     cfg = _config_from_args(args)
     out = Path(args.out or f"runs/{name}" + ("" if args.kind == "sdf" else f"-{args.kind}"))
     check_output_folder(out.resolve())  # fail before any work

@@ -52,9 +52,12 @@ class GeometryConfig:
 
 @dataclass
 class TextureConfig:
-    resolution: int = 512
-    """Side of the square feature atlas in texels (about one texel per pixel of the training views: a finer
-    atlas leaves most texels seen by one or two pixels, which VQ turns into speckle)."""
+    resolution: int = 0
+    """Side of the square feature atlas in texels; 0 (default): chosen from texel density, about one texel per
+    pixel of the training views (``pipeline.decisions.texel_density_resolution``; a finer atlas leaves most
+    texels seen by one or two pixels, which VQ turns into speckle), at most ``max_resolution``."""
+    max_resolution: int = 2048
+    """Upper limit of the automatic atlas side."""
     feature_dim: int = 8
     """Channels per texel (D)."""
     num_codes: int = 1024
@@ -68,6 +71,31 @@ class TextureConfig:
     """"auto" (measure the field and drop the view direction when colour does not depend on it), "on", "off"."""
     view_threshold: float = 0.01
     """Mean colour change (0..1) over view directions below which "auto" drops the view direction."""
+
+
+@dataclass
+class SkyboxConfig:
+    mode: str = "auto"
+    """"auto" (skyboxes when training rays miss the mesh and the field's background is not one constant
+    colour), "on", "off"."""
+    layers: int = 4
+    """Nested cube layers (NeuRas uses 6 for driving scenes)."""
+    near: float = 0.0
+    """Half size of the innermost layer in world units (0: the foreground box's half diagonal, or 1.25x the
+    farthest camera from its centre along an axis, whichever is larger). It must enclose every camera."""
+    far: float = 0.0
+    """Half size of the outermost layer (0: 16x near; the paper spans 150 m .. 2.4 km). Layers between are
+    spaced geometrically."""
+    resolution: int = 64
+    """Texels along each face side of each layer."""
+    feature_dim: int = 8
+    """Channels per skybox texel."""
+    num_codes: int = 256
+    """Codebook size of the skyboxes (their own codebook, as in the paper)."""
+    hidden: int = 16
+    """Hidden units of the skybox MLP."""
+    ablation: bool = True
+    """Also play the bundle without its skybox pass and report the PSNR drop."""
 
 
 @dataclass
@@ -106,6 +134,7 @@ class DistillConfig:
     texture: TextureConfig = field(default_factory=TextureConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    skybox: SkyboxConfig = field(default_factory=SkyboxConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -115,7 +144,9 @@ class DistillConfig:
         require(g.face_budget >= 4, f"face budget must be at least 4 faces, got {g.face_budget}; "
                                     "pass e.g. --face-budget 40000")
         require(g.grid_resolution >= 16, f"grid resolution must be at least 16, got {g.grid_resolution}")
-        require(16 <= t.resolution <= 8192, f"texture resolution must be in 16..8192, got {t.resolution}")
+        require(t.resolution == 0 or 16 <= t.resolution <= 8192,
+                f"texture resolution must be 0 (automatic) or in 16..8192, got {t.resolution}")
+        require(64 <= t.max_resolution <= 8192, f"max texture resolution must be in 64..8192, got {t.max_resolution}")
         require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
         require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
         require(t.view_dependence in ("auto", "on", "off"),
@@ -123,6 +154,16 @@ class DistillConfig:
         require(tr.steps >= 1, f"training steps must be at least 1, got {tr.steps}")
         require(self.eval.width >= 16 and self.teacher.train_width >= 16, "image widths must be at least 16")
         require(self.cameras.num_views >= 2, "need at least 2 views (some train, some held out)")
+        sb = self.skybox
+        require(sb.mode in ("auto", "on", "off"), f"skybox mode must be auto, on or off, got {sb.mode!r}")
+        require(1 <= sb.layers <= 16, f"skybox layer count must be in 1..16, got {sb.layers}")
+        require(sb.near >= 0 and sb.far >= 0, f"skybox distances must be positive (0 = automatic), got "
+                                              f"near={sb.near}, far={sb.far}")
+        require(not (sb.near and sb.far) or sb.far > sb.near or sb.layers == 1,
+                f"skybox layers must nest: far ({sb.far}) must be larger than near ({sb.near})")
+        require(2 <= sb.resolution <= 4096, f"skybox resolution must be in 2..4096, got {sb.resolution}")
+        require(1 <= sb.feature_dim <= 32 and 2 <= sb.num_codes <= 65535 and sb.hidden >= 1,
+                "skybox feature_dim must be in 1..32, num_codes in 2..65535, hidden >= 1")
         return self
 
 

@@ -60,7 +60,8 @@ def test_from_ngp_on_the_trained_snapshot(tmp_path):
     mesh = (out / "bundle" / "mesh.npz")
     import numpy as np
 
-    v = np.load(mesh)["vertices"]
+    origin = json.loads((out / "bundle" / "manifest.json").read_text())["origin"]
+    v = np.load(mesh)["vertices"] + np.asarray(origin, np.float32)   # stored relative to the scene centre
     assert -0.3 < v[:, 2].min() < 0.1 and 0.8 < v[:, 2].max() < 1.2
 
 

@@ -180,3 +180,22 @@ def test_bunny_cache_reused(bunny_cache):
     f.cache_path.write_bytes(b"garbage")
     rebuilt = BunnyField(resolution=48)
     assert torch.equal(rebuilt._sdf_grid, f._sdf_grid)
+
+
+def test_matte_bunny_has_no_view_dependence_and_the_decision_drops_it(bunny_cache):
+    import numpy as np
+
+    from neuras_distill.bake.glsl import generate_fragment_shader
+    from neuras_distill.geometry.mesh import MeshData
+    from neuras_distill.neural.model import NeuralTextureModel
+    from neuras_distill.pipeline.decisions import measure_view_dependence
+
+    glossy, _ = bunny_cache
+    matte = BunnyField(resolution=48, gloss=0.0)
+    mesh = MeshData(np.asarray(glossy.vertices, np.float32), np.asarray(glossy.faces, np.int32))
+    threshold = 0.01                                   # TextureConfig.view_threshold
+    assert measure_view_dependence(matte, mesh, num_points=256) < 1e-6
+    assert measure_view_dependence(glossy, mesh, num_points=256) > threshold
+    shader = generate_fragment_shader(NeuralTextureModel(8, 8, use_viewdir=False, use_vq=False))
+    assert "u_cam_pos" not in shader and "v_world" not in shader
+    assert "bunny-matte" in SCENES

@@ -3,7 +3,7 @@
 This module owns:
 
 * :data:`SCENES` (name -> factory) and :func:`make_scene` (``kind="sdf"`` or ``"density"``). Names:
-  ``"bunny"`` (the default/demo scene), ``"sphere"``, ``"torus"``.
+  ``"bunny"`` (the default/demo scene), ``"bunny-matte"`` (the same without its highlight), ``"sphere"``, ``"torus"``, ``"street"`` (:mod:`.street`).
 * :class:`BunnyField`: the real Stanford bunny (``neuras_distill/data/bunny.obj``, y-up in the file) rotated
   to z-up, scaled to 1 unit tall, standing on a rounded disc. Its SDF is computed once with open3d
   (``RaycastingScene.compute_signed_distance`` with a majority vote over several rays for the sign, since
@@ -34,6 +34,7 @@ import torch.nn.functional as F
 
 from ..errors import BadInputError
 from .analytic import SDFToDensityField, SphereSDF, TorusSDF, orbit_framing
+from .street import STREET_BETA, make_street
 
 BUNNY_OBJ = Path(__file__).resolve().parent.parent / "data" / "bunny.obj"
 BAKE_VERSION = 2
@@ -205,7 +206,9 @@ class BunnyField:
 
     kind = "sdf"
 
-    def __init__(self, resolution: int = GRID_RESOLUTION, inv_s: float = BUNNY_INV_S):
+    def __init__(self, resolution: int = GRID_RESOLUTION, inv_s: float = BUNNY_INV_S,
+                 gloss: float = GLOSS_STRENGTH):
+        self.gloss = float(gloss)             # 0: a matte bunny (no view-dependent highlight)
         grid = load_bunny_grid(resolution)
         self.vertices, self.faces = grid["vertices"], grid["faces"]
         self.cache_path = grid["cache_path"]
@@ -295,7 +298,7 @@ class BunnyField:
         shade = AMBIENT + (1.0 - AMBIENT) * ((ndl + WRAP) / (1.0 + WRAP)).clamp(min=0.0)
         rgb = self.albedo(x, on_bunny) * shade[:, None]
         h = F.normalize(self._light - d, dim=-1)
-        spec = GLOSS_STRENGTH * (n * h).sum(-1).clamp(min=0.0) ** GLOSS_EXPONENT * on_bunny.float()
+        spec = self.gloss * (n * h).sum(-1).clamp(min=0.0) ** GLOSS_EXPONENT * on_bunny.float()
         return (rgb + spec[:, None]).clamp(0.0, 1.0)
 
     def default_cameras(self, n: int, width: int = 512, height: int = 512):
@@ -309,6 +312,10 @@ def _bunny() -> BunnyField:
     return BunnyField()
 
 
+def _bunny_matte() -> BunnyField:
+    return BunnyField(gloss=0.0)
+
+
 def _sphere() -> SphereSDF:
     return SphereSDF(center=(0.0, 0.0, 0.5), radius=0.5, inv_s=BUNNY_INV_S, gloss=GLOSS_STRENGTH)
 
@@ -317,9 +324,10 @@ def _torus() -> TorusSDF:
     return TorusSDF(center=(0.0, 0.0, 0.2), major=0.5, minor=0.2, inv_s=BUNNY_INV_S, gloss=GLOSS_STRENGTH)
 
 
-SCENES: dict[str, Callable[[], object]] = {"bunny": _bunny, "sphere": _sphere, "torus": _torus}
+SCENES: dict[str, Callable[[], object]] = {"bunny": _bunny, "bunny-matte": _bunny_matte, "sphere": _sphere,
+                                           "torus": _torus, "street": make_street}
 DEFAULT_SCENE = "bunny"
-SCENE_BETA = {"bunny": BUNNY_BETA, "sphere": BUNNY_BETA, "torus": BUNNY_BETA}
+SCENE_BETA = {"bunny": BUNNY_BETA, "bunny-matte": BUNNY_BETA, "sphere": BUNNY_BETA, "torus": BUNNY_BETA, "street": STREET_BETA}
 
 
 def make_scene(name: str = DEFAULT_SCENE, kind: str = "sdf"):

@@ -63,3 +63,50 @@ def background_color(field) -> torch.Tensor:
     if bg is None:
         return torch.zeros(3)
     return torch.as_tensor(bg, dtype=torch.float32).reshape(3)
+
+
+def texel_density_resolution(mesh: MeshData, cameras, *, multiple: int = 64, lo: int = 128,
+                             hi: int = 4096) -> tuple[int, dict]:
+    """Atlas side giving about one texel per training pixel on the surface.
+
+    For every face the footprint in pixels is taken from the camera that sees it largest (world area x
+    |cos| of the viewing angle x (focal / depth)^2, for cameras it faces with its centroid inside the frame;
+    occlusion is ignored, so hidden faces count as seen: a slight overestimate). With ``A_px`` the sum of
+    those footprints and ``A_uv`` the faces' total uv area (fraction of the unit square),
+    ``R = sqrt(A_px / A_uv)``, rounded up to a multiple of ``multiple`` and clamped to [lo, hi].
+
+    Args:
+        mesh: vertices (V, 3) world, faces (F, 3), uvs (V, 2) in [0, 1].
+        cameras: ``Cameras`` (the training views, at the training resolution).
+    Returns:
+        (R, {"pixels": A_px, "uv_area": A_uv, "exact": unrounded R}).
+    """
+    v = mesh.vertices.astype(np.float64)
+    f = mesh.faces
+    tri = v[f]
+    centroid = tri.mean(axis=1)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    normal = cross / np.maximum(2.0 * area[:, None], 1e-30)
+    best = np.zeros(len(f))
+    for i in range(len(cameras)):
+        c2w = cameras.c2w[i].double().numpy()
+        rel = centroid - c2w[:3, 3]
+        cam = rel @ c2w[:3, :3]                       # camera frame: x right, y up, -z forward
+        depth = -cam[:, 2]
+        dist = np.linalg.norm(rel, axis=1)
+        facing = -np.einsum("ij,ij->i", normal, rel) / np.maximum(dist, 1e-30)
+        fx, fy = float(cameras.fx[i]), float(cameras.fy[i])
+        px = fx * cam[:, 0] / np.maximum(depth, 1e-30) + float(cameras.cx[i])
+        py = -fy * cam[:, 1] / np.maximum(depth, 1e-30) + float(cameras.cy[i])
+        ok = (depth > 0) & (facing > 0) & (px >= 0) & (px < cameras.width) & (py >= 0) & (py < cameras.height)
+        foot = np.where(ok, area * facing * fx * fy / np.maximum(depth, 1e-30) ** 2, 0.0)
+        np.maximum(best, foot, out=best)
+    uv = mesh.uvs.astype(np.float64)
+    ut = uv[f]
+    uv_area = 0.5 * np.abs((ut[:, 1, 0] - ut[:, 0, 0]) * (ut[:, 2, 1] - ut[:, 0, 1])
+                           - (ut[:, 1, 1] - ut[:, 0, 1]) * (ut[:, 2, 0] - ut[:, 0, 0]))
+    pixels, uv_total = float(best.sum()), float(uv_area.sum())
+    exact = float(np.sqrt(pixels / uv_total)) if uv_total > 0 and pixels > 0 else float(lo)
+    r = int(min(hi, max(lo, multiple * np.ceil(exact / multiple))))
+    return r, {"pixels": pixels, "uv_area": uv_total, "exact": exact}

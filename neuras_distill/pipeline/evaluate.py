@@ -57,12 +57,23 @@ def error_vs_runtime(make_renderer, cameras: Cameras, reference_steps: int, step
 
 
 def gl_torch_parity(model, mesh, cameras: Cameras, gl_image: np.ndarray, background: np.ndarray,
-                    rasterize) -> float:
+                    rasterize, skybox=None, world_cameras: Cameras | None = None) -> float:
     """PSNR of the OpenGL render of camera 0 against the torch forward pass of the same model on the same
-    G-buffer: proves the baked bundle plays what was trained (8-bit framebuffer caps it near 59 dB)."""
+    G-buffer: proves the baked bundle plays what was trained (8-bit framebuffer caps it near 59 dB).
+    ``mesh`` and ``cameras`` in the bundle's frame; with a ``skybox`` the pixels the mesh misses are
+    compared with its torch forward pass on the rays of ``world_cameras`` (camera 0)."""
+    import torch
+
     gbuffer = rasterize(mesh, cameras[0])
     dirs = cameras.rays(0)[1].numpy()
     reference = model.render_gbuffer(gbuffer.uv[0], gbuffer.coverage[0], dirs, background)
+    if skybox is not None:
+        origins, world_dirs = world_cameras.rays(0)
+        missed = ~gbuffer.coverage[0]
+        with torch.no_grad():
+            sky, _ = skybox(skybox.layers.relative(origins[torch.from_numpy(missed)]),
+                            world_dirs[torch.from_numpy(missed)])
+        reference[missed] = sky.numpy()
     return metrics.psnr(gl_image, reference)
 
 

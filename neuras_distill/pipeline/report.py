@@ -40,9 +40,36 @@ def summary_table(rep: dict) -> str:
     lines += ["  ".join(c.ljust(widths[i]) for i, c in enumerate(r)) for r in rows[1:]]
     lines.append(f"speedup: {rep['speedup']:.0f}x    total: {rep['distill_seconds']:.1f} s    stages: "
                  + ", ".join(f"{k} {v:.1f}s" for k, v in rep["stage_seconds"].items()))
+    sky = rep.get("skybox") or {}
+    if sky.get("used"):
+        lines.append(f"skyboxes: {len(sky['half_sizes'])} layers, half sizes "
+                     + ", ".join(f"{r:.4g}" for r in sky["half_sizes"]) + f"; {sky['reason']}")
+    for name, q in (rep.get("extrapolation") or {}).items():
+        lines.append(f"lane shift {name}: {q['psnr']:.2f} dB / SSIM {q['ssim']:.4f}")
+    if rep.get("ablation"):
+        a = rep["ablation"]
+        lines.append(f"ablation: without skyboxes {a['psnr_without_skyboxes']:.2f} dB "
+                     f"(-{a['drop_db']:.2f} dB against {a['psnr_with_skyboxes']:.2f} dB with them)")
     for item in rep["left_out"]:
         lines.append(f"left out: {item['component']}: {item['reason']}")
     return "\n".join(lines)
+
+
+def _skybox_lines(rep: dict) -> list[str]:
+    sky = rep.get("skybox") or {}
+    if not sky.get("used"):
+        return []
+    lines = ["## Skyboxes", "", f"{len(sky['half_sizes'])} cube layers around {[round(c, 3) for c in sky['center']]}, "
+             "half sizes " + ", ".join(f"{r:.4g}" for r in sky["half_sizes"]) + f", {sky['resolution']}^2 texels "
+             f"per face, {sky['num_codes']} codes. Why: {sky['reason']}.", ""]
+    if rep.get("extrapolation"):
+        lines += ["Lane shifts (held-out poses moved sideways; views/lane_*.png): "
+                  + ", ".join(f"{k}: {q['psnr']:.2f} dB" for k, q in rep["extrapolation"].items()), ""]
+    if rep.get("ablation"):
+        a = rep["ablation"]
+        lines += [f"Ablation: held-out PSNR {a['psnr_with_skyboxes']:.2f} dB with skyboxes, "
+                  f"{a['psnr_without_skyboxes']:.2f} dB without ({a['drop_db']:.2f} dB drop; {a['how']}).", ""]
+    return lines
 
 
 def markdown(rep: dict) -> str:
@@ -66,6 +93,7 @@ def markdown(rep: dict) -> str:
         "## Time per stage", "", "| stage | seconds |", "|---|---|",
         *[f"| {k} | {v:.1f} |" for k, v in rep["stage_seconds"].items()],
         f"| total | {rep['distill_seconds']:.1f} |", "",
+        *_skybox_lines(rep),
         "## Left out", "",
         *([f"- **{i['component']}**: {i['reason']}" for i in rep["left_out"]] or ["- nothing"]), "",
         "## Error against run time (first held-out view, against the field at twice the steps)", "",
@@ -115,13 +143,18 @@ def plot(rep: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_run_outputs(root: Path, rep: dict, field_images, bundle_images) -> None:
+def write_run_outputs(root: Path, rep: dict, field_images, bundle_images, extra_views: dict | None = None) -> None:
+    """report.json, report.md, the error-vs-runtime plot and views/ (field | bundle | error per held-out view;
+    ``extra_views`` {name: [(field, bundle), ...]} are saved as views/<name>_<i>.png)."""
     from PIL import Image
 
     views = root / "views"
     views.mkdir(exist_ok=True)
     for i, (f, b) in enumerate(zip(field_images, bundle_images)):
         Image.fromarray(side_by_side(f, b)).save(views / f"view_{i:02d}.png")
+    for name, pairs in (extra_views or {}).items():
+        for i, (f, b) in enumerate(pairs):
+            Image.fromarray(side_by_side(f, b)).save(views / f"{name}_{i:02d}.png")
     plot(rep, root / "error_vs_runtime.png")
     (root / "report.json").write_text(json.dumps(rep, indent=2, default=_json_default))
     (root / "report.md").write_text(markdown(rep))

@@ -3,6 +3,10 @@
 Stages (each timed, each with a small manifest under ``stages/<name>/``): cameras -> teacher -> geometry ->
 gbuffer -> distill -> bake -> evaluate. The run folder is written in a temporary sibling and moved into
 place at the end, so a failed run leaves nothing half-written.
+
+Frames: the field and the teacher work in world coordinates. Everything that runs in float32 on the GPU
+side (G-buffers, training inputs, the bundle) works relative to the foreground box's centre (``origin``,
+float64), so a scene kilometres from its world origin keeps float32 precision; the bundle records the origin.
 """
 
 from __future__ import annotations
@@ -75,6 +79,26 @@ def _device_info(gl_info: dict | None) -> dict:
     gl = gl_info or {}
     return {"field": field_side, "bundle": f"OpenGL: {gl.get('renderer', '?')} ({gl.get('version', '?')})",
             "python": sys.version.split()[0], "platform": platform.platform()}
+
+
+def _resolve_skyboxes(field, cfg: DistillConfig, gbuffer, left_out: list) -> tuple[bool, str]:
+    """(use skyboxes, reason) from the configuration and measurements (see decisions.py)."""
+    mode = cfg.skybox.mode
+    if mode == "off":
+        left_out.append({"component": "skyboxes", "reason": "turned off by configuration"})
+        return False, "off"
+    if mode == "on":
+        return True, "turned on by configuration"
+    uncovered = float(1.0 - gbuffer.coverage.mean())
+    if uncovered == 0.0:
+        reason = "every training ray ends on the foreground mesh"
+        left_out.append({"component": "skyboxes", "reason": reason})
+        return False, reason
+    constant_bg, bg_reason = decisions.background_is_constant(field)
+    if constant_bg:
+        left_out.append({"component": "skyboxes", "reason": bg_reason})
+        return False, bg_reason
+    return True, f"{100 * uncovered:.1f}% of training pixels miss the mesh and {bg_reason}"
 
 
 def _resolve_view_dependence(field, mesh, cfg: DistillConfig, left_out: list) -> tuple[bool, float | None]:
@@ -151,6 +175,9 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     from ..neural.train import fit
     from ..geometry.extract import extract_mesh
     from ..playback.context import gl_info
+    from ..geometry.mesh import MeshData
+    from ..neural.skybox import SkyboxModel, plan_layers
+    from ..playback.projection import shift_cameras
     from ..playback.rasterize import rasterize_gbuffer
     from ..playback.renderer import BundleRenderer
     from ..playback.shaders import VERTEX_SHADER
@@ -167,6 +194,9 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     test = test_full.resized(cfg.eval.width)
     if root is not None:
         (root / "cameras.json").write_text(json.dumps({"train": train.to_json(), "test": test.to_json()}))
+    if cfg.skybox.mode != "off":            # distances given by the user are checked before any rendering
+        plan_layers(field.aabb, cameras.centers.double().numpy(), num_layers=cfg.skybox.layers,
+                    near=cfg.skybox.near or None, far=cfg.skybox.far or None, resolution=cfg.skybox.resolution)
     stages.done(train=len(train), test=len(test), train_size=[train.width, train.height],
                 test_size=[test.width, test.height])
 
@@ -182,50 +212,84 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     # 3. geometry -----------------------------------------------------------------------------------
     stages.start("geometry", f"marching cubes at {cfg.geometry.grid_resolution}, decimation to "
                              f"{cfg.geometry.face_budget} faces, culling, UV unwrap")
+    density: dict = {}
+
+    def by_texel_density(unwrapped):
+        side, info = decisions.texel_density_resolution(unwrapped, train, hi=cfg.texture.max_resolution)
+        density.update(info, chosen=side)
+        return side
+
+    auto_res = cfg.texture.resolution == 0
     mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
-                        face_budget=cfg.geometry.face_budget, texture_resolution=cfg.texture.resolution,
+                        face_budget=cfg.geometry.face_budget,
+                        texture_resolution=min(1024, cfg.texture.max_resolution) if auto_res else cfg.texture.resolution,
                         unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen,
-                        density_level=getattr(field, "surface_level", None))
+                        density_level=getattr(field, "surface_level", None),
+                        choose_resolution=by_texel_density if auto_res else None)
+    tex_res = int(mesh.stats["uv_resolution"])
+    charts = int(mesh.stats.get("uv_charts") or 0)
+    need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
+    require(tex_res >= need, f"a {tex_res}x{tex_res} texture is too small for this mesh: its {charts} UV charts "
+                             f"need at least {need}x{need} texels; raise --texture-resolution (or use 0 for "
+                             f"automatic) or lower --face-budget")
+    if auto_res:
+        capped = density["exact"] > cfg.texture.max_resolution
+        left_out.append({"component": "texels beyond the training views' detail",
+                         "reason": f"atlas {tex_res}x{tex_res} chosen from texel density: the training views see "
+                                   f"{density['pixels']:.0f} pixels of surface on {100 * density['uv_area']:.1f}% "
+                                   f"of the atlas, about one texel per pixel at {density['exact']:.0f}"
+                                   + (f" (capped at max_resolution {cfg.texture.max_resolution})" if capped else "")})
     culled = int(mesh.stats.get("culled_faces", 0))
     if culled:
         left_out.append({"component": "unseen faces",
                          "reason": f"{culled} faces seen by no training camera were culled before unwrapping "
                                    "(they get no texels)"})
     use_viewdir, view_spread = _resolve_view_dependence(field, mesh, cfg, left_out)
-    constant_bg, bg_reason = decisions.background_is_constant(field)
-    if constant_bg:
-        left_out.append({"component": "skyboxes", "reason": bg_reason})
-    else:
-        raise BadInputError(f"this scene needs neural skyboxes ({bg_reason}), which this version does not "
-                            "build yet; give a field with a constant background")
     stages.done(**{k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))})
 
     # 4. gbuffer ------------------------------------------------------------------------------------
     stages.start("gbuffer", f"rasterizing {mesh.num_faces} faces for {len(train)} views (OpenGL)")
-    gbuffer = rasterize_gbuffer(mesh, train, cull_back_faces=cfg.geometry.cull_back_faces)
+    aabb64 = np.asarray(torch.as_tensor(field.aabb).double().reshape(2, 3).cpu().numpy())
+    origin = 0.5 * (aabb64[0] + aabb64[1])            # float64: GL and training work relative to it
+    local_mesh = MeshData((mesh.vertices.astype(np.float64) - origin).astype(np.float32), mesh.faces, mesh.uvs,
+                          mesh.stats)
+    gbuffer = rasterize_gbuffer(local_mesh, shift_cameras(train, origin), cull_back_faces=cfg.geometry.cull_back_faces)
     dirs = np.stack([train.rays(i)[1].numpy() for i in range(len(train))]).astype(np.float32)
-    stages.done(coverage=float(gbuffer.coverage.mean()))
+    use_skybox, sky_reason = _resolve_skyboxes(field, cfg, gbuffer, left_out)
+    skybox = None
+    sb = cfg.skybox
+    if use_skybox:
+        layers = plan_layers(aabb64, cameras.centers.double().numpy(), num_layers=sb.layers,
+                             near=sb.near or None, far=sb.far or None, resolution=sb.resolution)
+        skybox = SkyboxModel(layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
+        sky_origins = layers.relative(train.centers.double().numpy()).numpy()
+        missed = ~gbuffer.coverage
+        bg = torch.as_tensor(targets[missed].mean(axis=0) if missed.any() else np.zeros(3), dtype=torch.float32)
+    else:
+        bg = decisions.background_color(field)
+    stages.done(coverage=float(gbuffer.coverage.mean()), skyboxes=use_skybox, skybox_reason=sky_reason)
 
     # 5. distill ------------------------------------------------------------------------------------
     t = cfg.texture
-    stages.start("distill", f"{t.resolution}^2 x {t.feature_dim} feature atlas, {t.num_codes} codes, "
+    stages.start("distill", f"{tex_res}^2 x {t.feature_dim} feature atlas, {t.num_codes} codes, "
                             f"MLP {t.num_layers}x{t.hidden}{'' if use_viewdir else ' (no view input)'}, "
                             f"{cfg.train.steps} steps")
-    model = NeuralTextureModel(t.resolution, t.resolution, feature_dim=t.feature_dim, num_codes=t.num_codes,
+    model = NeuralTextureModel(tex_res, tex_res, feature_dim=t.feature_dim, num_codes=t.num_codes,
                                hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir)
     train_log = fit(model, gbuffer.uv, gbuffer.coverage, dirs, targets, steps=cfg.train.steps,
                     lr=cfg.train.lr, batch_patches=cfg.train.batch_patches, patch=cfg.train.patch,
                     ssim_weight=cfg.train.ssim_weight, time_budget_s=cfg.train.time_budget_s or None,
-                    progress=progress, seed=cfg.train.seed)
+                    progress=progress, seed=cfg.train.seed, skybox=skybox,
+                    origins=sky_origins if skybox is not None else None)
     train_history = list(train_log.entries)
     stages.done(**{k: v for k, v in train_log.as_dict().items() if k != "entries"})
 
     # 6. bake ---------------------------------------------------------------------------------------
     stages.start("bake", "quantized features -> textures, MLP -> GLSL")
-    bg = decisions.background_color(field)
-    bundle = bake(model, mesh, background_color=bg.tolist(), vertex_shader=VERTEX_SHADER,
+    bundle = bake(model, local_mesh, background_color=bg.tolist(), vertex_shader=VERTEX_SHADER,
                   extra_manifest={"left_out": left_out, "view_dependence": use_viewdir,
-                                  "cull_back_faces": cfg.geometry.cull_back_faces})
+                                  "cull_back_faces": cfg.geometry.cull_back_faces},
+                  skybox=skybox, origin=origin)
     codes_total = t.num_codes
     codes_kept = int(bundle.manifest.get("num_codes", codes_total))
     if codes_kept < codes_total:
@@ -244,14 +308,23 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     player = BundleRenderer(bundle)
     bundle_images = [player.render(test, i) for i in range(len(test))]
     quality = evaluate.compare(bundle_images, field_images)
-    parity = evaluate.gl_torch_parity(model, mesh, test, bundle_images[0], bg.numpy(),
-                                      lambda m, c: rasterize_gbuffer(m, c, cull_back_faces=cfg.geometry.cull_back_faces))
+    parity = evaluate.gl_torch_parity(model, local_mesh, shift_cameras(test, origin), bundle_images[0], bg.numpy(),
+                                      lambda m, c: rasterize_gbuffer(m, c, cull_back_faces=cfg.geometry.cull_back_faces),
+                                      skybox=skybox, world_cameras=test)
+    ablation = None
+    if skybox is not None and sb.ablation:
+        no_sky = evaluate.compare([player.render(test, i, skybox=False) for i in range(len(test))], field_images)
+        ablation = {"psnr_with_skyboxes": quality["psnr"], "psnr_without_skyboxes": no_sky["psnr"],
+                    "drop_db": quality["psnr"] - no_sky["psnr"],
+                    "how": "the same bundle played without its skybox pass; pixels the mesh misses get the mean "
+                           "colour of the training pixels it misses"}
     timing = player.time_frames(test, warmup=5, frames=cfg.eval.fps_frames)
     points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(field, num_steps=s), test,
                                        2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
                                        cfg.teacher.num_steps, player)
     fps_before = 1.0 / float(np.median(field_seconds))
     fps_after = float(timing["fps"])
+    extrapolation, extra_views = _lane_shift_views(field, teacher, player, test)
     stages.done(psnr=quality["psnr"], ssim=quality["ssim"], parity_psnr=parity)
 
     float16_bytes = int(bundle.float16_nbytes())
@@ -274,7 +347,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "stage_seconds": stages.seconds,
         "mesh_faces": mesh.num_faces,
         "mesh_stats": {k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))},
-        "texture_resolution": [t.resolution, t.resolution],
+        "texture_resolution": [tex_res, tex_res],
         "feature_dim": t.feature_dim,
         "codebook_size": codes_kept,
         "bundle_bytes": int(bundle.nbytes_on_disk()),
@@ -282,6 +355,13 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "feature_bytes_float16": float16_bytes,
         "left_out": left_out,
         "view_dependence": {"used": use_viewdir, "measured_spread": view_spread},
+        "skybox": ({"used": True, "reason": sky_reason, **skybox.layers.to_json(),
+                    "num_codes": int(bundle.manifest["skybox"]["num_codes"]),
+                    "touched_fraction": train_log.sky_touched_fraction}
+                   if skybox is not None else {"used": False, "reason": sky_reason}),
+        "ablation": ablation,
+        "extrapolation": extrapolation,
+        "origin": [float(x) for x in origin],
         "error_vs_runtime": points,
         "frame_time_ms": {"field_median": 1000 * float(np.median(field_seconds)),
                           "bundle_median": timing["median_ms"], "bundle_p90": timing.get("p90_ms")},
@@ -294,9 +374,28 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     }
     rep["distill_seconds"] = time.perf_counter() - t_start
     if root is not None:
-        report_mod.write_run_outputs(root, rep, field_images, bundle_images)
+        report_mod.write_run_outputs(root, rep, field_images, bundle_images, extra_views)
     log(report_mod.summary_table(rep))
     return DistillResult(report=rep, out=root, bundle=bundle)
+
+
+def _lane_shift_views(field, teacher, player, test: Cameras, views: int = 2) -> tuple[dict | None, dict]:
+    """Extrapolation as the paper evaluates it, for fields that name lane shifts (``field.lane_shifts``, metres):
+    the first ``views`` held-out cameras moved sideways by each shift, field vs bundle.
+    Returns ({"+2 m": {"psnr", "ssim"}, ...} or None, {image name: [(field, bundle), ...]})."""
+    shifts = getattr(field, "lane_shifts", None)
+    if not shifts:
+        return None, {}
+    sub = test[list(range(min(views, len(test))))]
+    results, images = {}, {}
+    for shift in shifts:
+        cams = sub.lane_shifted(float(shift))
+        field_images, _ = evaluate.render_field_timed(teacher, cams)
+        bundle_images = [player.render(cams, i) for i in range(len(cams))]
+        q = evaluate.compare(bundle_images, field_images)
+        results[f"{float(shift):+g} m"] = {"psnr": q["psnr"], "ssim": q["ssim"]}
+        images[f"lane_{float(shift):+g}m"] = list(zip(field_images, bundle_images))
+    return results, images
 
 
 def _progress_printer(log, label: str, enabled: bool):

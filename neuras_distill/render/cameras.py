@@ -119,6 +119,21 @@ class Cameras:
         sx, sy = width / self.width, height / self.height
         return Cameras(self.c2w, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height)
 
+    def lane_shifted(self, metres: float) -> "Cameras":
+        """Every camera moved by ``metres`` along its own right axis projected onto the horizontal plane
+        (world z up) and renormalised; positive moves to the camera's right. Orientation and intrinsics are
+        unchanged (a lane change for driving cameras)."""
+        require(math.isfinite(float(metres)), f"lane shift must be finite, got {metres}")
+        right = self.c2w[:, :3, 0].double().clone()
+        right[:, 2] = 0.0
+        norm = right.norm(dim=-1, keepdim=True)
+        bad = torch.nonzero(norm[:, 0] < 1e-6).flatten()
+        require(bad.numel() == 0, f"camera {int(bad[0]) if bad.numel() else 0} has a vertical right axis "
+                                  "(rolled by 90 degrees): no horizontal direction to shift it along")
+        c2w = self.c2w.double().clone()
+        c2w[:, :3, 3] += float(metres) * right / norm
+        return Cameras(c2w.float(), self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+
     def split(self, test_every: int = 8) -> tuple["Cameras", "Cameras"]:
         """(train, held_out): every ``test_every``-th camera (starting at index test_every // 2) is held out."""
         n = len(self)
