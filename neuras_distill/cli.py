@@ -21,6 +21,8 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
     p.add_argument("--texture-resolution", type=int, default=None, help="side of the feature atlas in texels")
     p.add_argument("--view-dependence", choices=["auto", "on", "off"], default=None,
                    help="view-direction input of the shader (auto: decided from the field)")
+    p.add_argument("--eval-width", type=int, default=None,
+                   help="width of the held-out frames that are timed and compared (0: the cameras' own size)")
     p.add_argument("--skyboxes", choices=["auto", "on", "off"], default=None,
                    help="neural skyboxes for what lies beyond the mesh (auto: decided from the field and cameras)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -87,6 +89,8 @@ def _config_from_args(args):
         overrides.setdefault("texture", {})["resolution"] = args.texture_resolution
     if args.view_dependence is not None:
         overrides.setdefault("texture", {})["view_dependence"] = args.view_dependence
+    if args.eval_width is not None:
+        overrides.setdefault("eval", {})["width"] = args.eval_width
     if args.skyboxes is not None:
         overrides.setdefault("skybox", {})["mode"] = args.skyboxes
     return load_config(preset=args.preset, path=args.config, overrides=overrides)

@@ -52,10 +52,12 @@ class GeometryConfig:
 
 @dataclass
 class TextureConfig:
-    resolution: int = 0
-    """Side of the square feature atlas in texels; 0 (default): chosen from texel density, about one texel per
-    pixel of the training views (``pipeline.decisions.texel_density_resolution``; a finer atlas leaves most
-    texels seen by one or two pixels, which VQ turns into speckle), at most ``max_resolution``."""
+    resolution: int = 512
+    """Side of the square feature atlas in texels (about one texel per pixel of the training views on the demo:
+    a finer atlas leaves most texels seen by one or two pixels, which VQ turns into speckle). 0: chosen per
+    run from texel density (``pipeline.decisions.texel_density_resolution``), limited by the training budget
+    and ``max_resolution``. Not the default yet: on the street scene every atlas above 128^2 trained to
+    desaturated colours (with or without the VQ warm-up change), cause not found; see docs/architecture.md."""
     max_resolution: int = 2048
     """Upper limit of the automatic atlas side."""
     feature_dim: int = 8
@@ -119,7 +121,8 @@ class TrainConfig:
 @dataclass
 class EvalConfig:
     width: int = 1920
-    """Width of held-out frames for PSNR/SSIM and FPS (height follows the cameras' aspect ratio)."""
+    """Width of held-out frames for PSNR/SSIM and FPS (height follows the cameras' aspect ratio); 0: the
+    cameras' own size."""
     fps_frames: int = 30
     """Timed bundle frames (after warm-up) for the median frame time."""
     runtime_steps: list[int] = field(default_factory=lambda: [32, 64, 128])
@@ -152,7 +155,8 @@ class DistillConfig:
         require(t.view_dependence in ("auto", "on", "off"),
                 f"view_dependence must be auto, on or off, got {t.view_dependence!r}")
         require(tr.steps >= 1, f"training steps must be at least 1, got {tr.steps}")
-        require(self.eval.width >= 16 and self.teacher.train_width >= 16, "image widths must be at least 16")
+        require((self.eval.width == 0 or self.eval.width >= 16) and self.teacher.train_width >= 16,
+                "image widths must be at least 16 (eval width 0: the cameras' own size)")
         require(self.cameras.num_views >= 2, "need at least 2 views (some train, some held out)")
         sb = self.skybox
         require(sb.mode in ("auto", "on", "off"), f"skybox mode must be auto, on or off, got {sb.mode!r}")

@@ -78,3 +78,18 @@ def test_run_folder_refuses_foreign(tmp_path):
     with pytest.raises(BadInputError, match="not written by neuras-distill"):
         RunFolder(foreign)
     assert (foreign / "thesis.tex").read_text() == "precious"
+
+
+def test_skybox_texture_and_eval_settings_are_validated():
+    from neuras_distill.config import load_config
+    from neuras_distill.errors import BadInputError
+
+    cfg = load_config(overrides={"eval": {"width": 0}, "texture": {"resolution": 0}, "skybox": {"mode": "off"}})
+    assert cfg.eval.width == 0 and cfg.texture.resolution == 0 and cfg.skybox.mode == "off"
+    for bad, needle in (({"skybox": {"mode": "sometimes"}}, "skybox mode"),
+                        ({"skybox": {"layers": 0}}, "layer count"),
+                        ({"skybox": {"near": 100.0, "far": 10.0}}, "must nest"),
+                        ({"texture": {"resolution": 8}}, "texture resolution"),
+                        ({"eval": {"width": 8}}, "at least 16")):
+        with pytest.raises(BadInputError, match=needle):
+            load_config(overrides=bad)

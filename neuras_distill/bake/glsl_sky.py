@@ -14,7 +14,8 @@ torch forward pass of ``neural/skybox.py`` step by step:
 - the MLP (``l1`` ReLU, opacity head sigmoid, ``l2`` on [h, d] ReLU, ``l3`` sigmoid) unrolled as mat4 * vec4
   blocks with float32-exact literals; front-to-back compositing with the outermost layer opaque.
 
-The pass writes no depth (the renderer draws it with the depth test off, before the mesh).
+The triangle lies on the far plane (depth 1.0); the renderer draws it after the mesh with depth test "<="
+and depth writes off, so it fills exactly the pixels the mesh left at the cleared depth.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from .glsl import _mat4, _vec4, glsl_float
 SKY_VERTEX_SHADER = """#version 330
 const vec2 CORNERS[3] = vec2[](vec2(-1.0, -1.0), vec2(3.0, -1.0), vec2(-1.0, 3.0));
 void main() {
-    gl_Position = vec4(CORNERS[gl_VertexID], 0.0, 1.0);
+    gl_Position = vec4(CORNERS[gl_VertexID], 1.0, 1.0);   // on the far plane: depth 1.0
 }
 """
 

@@ -53,6 +53,18 @@ class NeuralTextureModel(nn.Module):
         self.register_buffer("touched", torch.zeros(self.tex_height * self.tex_width, dtype=torch.bool),
                              persistent=False)
         self.record_touched = False
+        if self.vq is not None:
+            self.vq.owned_codes = self._owned_codes
+
+    @torch.no_grad()
+    def _owned_codes(self) -> torch.Tensor:
+        """(K,) bool: codes the touched texels (all texels before any was recorded) quantize to now."""
+        flat = self.texture.flat.detach()
+        sel = torch.nonzero(self.touched).flatten()
+        z = flat[sel] if sel.numel() else flat
+        owned = torch.zeros(self.vq.num_codes, dtype=torch.bool, device=flat.device)
+        owned[self.vq.quantize_all(z)] = True
+        return owned
 
     @property
     def num_codes(self) -> int:

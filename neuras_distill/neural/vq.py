@@ -9,7 +9,12 @@ Owns: :class:`VectorQuantizer`. Decisions (see ``shared/reference/stability-and-
   identity gradient to ``z``), so what trains is bit-for-bit what the baked shader plays.
 - Loss ``|sg[z] - e|^2 + beta |z - sg[e]|^2`` (means over elements); the codebook is a gradient-trained parameter.
 - Usage is tracked per code as an EMA of assignment counts and as "steps since last used"; codes unused for
-  ``dead_after`` training steps are replaced by random current inputs (dead-code reset).
+  ``dead_after`` training steps are replaced by random current inputs (dead-code reset) -- unless
+  ``owned_codes`` (set by the model: a callable giving a (K,) bool mask of the codes some trained texel still
+  maps to) says a texel outside the recent batches still uses them. Without that check a large scene lost its
+  rare colours: a code for a car seen in few views went unused for 100 steps, was reset to a random (mostly
+  grey) batch feature, and the car's texels fell onto grey codes (the street scene trained to a desaturated
+  21-24 dB; the same atlas without VQ kept its colours).
 - ``init_from(z)``: k-means++ seeding then k-means (10 Lloyd iterations, empty clusters keep their centre) on a
   sample of ``z``.
 """
@@ -45,6 +50,9 @@ class VectorQuantizer(nn.Module):
         self.register_buffer("steps_unused", torch.zeros(self.num_codes, dtype=torch.long))
         self.register_buffer("initialized", torch.tensor(False))
         self.num_resets = 0
+        self.owned_codes = None      # optional callable () -> (K,) bool: codes some texel still maps to
+        self._steps = 0
+        self._owned_mask, self._owned_at = None, None    # the mask is recomputed at most every dead_after steps
 
     # ------------------------------------------------------------------ assignment
     @torch.no_grad()
@@ -104,8 +112,15 @@ class VectorQuantizer(nn.Module):
         used = counts > 0
         self.steps_unused.add_(1)
         self.steps_unused[used] = 0
+        self._steps += 1
         if self.dead_after > 0:
             dead = torch.nonzero(self.steps_unused >= self.dead_after).flatten()
+            if dead.numel() > 0 and self.owned_codes is not None:
+                if self._owned_at is None or self._steps - self._owned_at >= self.dead_after:
+                    self._owned_mask, self._owned_at = self.owned_codes().to(dead.device), self._steps
+                owned = self._owned_mask
+                self.steps_unused[dead[owned[dead]]] = 0           # still used by texels outside recent batches
+                dead = dead[~owned[dead]]
             if dead.numel() > 0 and z.shape[0] > 0:
                 pick = torch.randint(0, z.shape[0], (dead.numel(),), device=z.device)
                 self.codebook.data[dead] = z.detach()[pick].float()
@@ -143,6 +158,7 @@ class VectorQuantizer(nn.Module):
         self.codebook.data.copy_(centres)
         self.ema_usage.fill_(0.0)
         self.steps_unused.zero_()
+        self._owned_mask, self._owned_at = None, None
         self.initialized.fill_(True)
 
     @staticmethod

@@ -191,7 +191,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     stages.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
     train_full, test_full = cameras.split(cfg.cameras.test_every)
     train = train_full.resized(cfg.teacher.train_width)
-    test = test_full.resized(cfg.eval.width)
+    test = test_full.resized(cfg.eval.width) if cfg.eval.width else test_full    # 0: the cameras' own size
     if root is not None:
         (root / "cameras.json").write_text(json.dumps({"train": train.to_json(), "test": test.to_json()}))
     if cfg.skybox.mode != "off":            # distances given by the user are checked before any rendering
@@ -216,8 +216,10 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
 
     def by_texel_density(unwrapped):
         side, info = decisions.texel_density_resolution(unwrapped, train, hi=cfg.texture.max_resolution)
-        density.update(info, chosen=side)
-        return side
+        samples = cfg.train.steps * cfg.train.batch_patches * cfg.train.patch ** 2
+        budget = decisions.training_budget_resolution(samples, info["uv_area"])
+        density.update(info, chosen=min(side, budget), budget=budget, samples=samples)
+        return min(side, budget)
 
     auto_res = cfg.texture.resolution == 0
     mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
@@ -238,7 +240,10 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                          "reason": f"atlas {tex_res}x{tex_res} chosen from texel density: the training views see "
                                    f"{density['pixels']:.0f} pixels of surface on {100 * density['uv_area']:.1f}% "
                                    f"of the atlas, about one texel per pixel at {density['exact']:.0f}"
-                                   + (f" (capped at max_resolution {cfg.texture.max_resolution})" if capped else "")})
+                                   + (f" (capped at max_resolution {cfg.texture.max_resolution})" if capped else "")
+                                   + (f"; limited to {density['budget']} by the training budget ({density['samples']} "
+                                      f"samples, {decisions.SAMPLES_PER_TEXEL} per used texel)"
+                                      if density["budget"] < density["exact"] else "")})
     culled = int(mesh.stats.get("culled_faces", 0))
     if culled:
         left_out.append({"component": "unseen faces",
@@ -263,7 +268,9 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                              near=sb.near or None, far=sb.far or None, resolution=sb.resolution)
         skybox = SkyboxModel(layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
         sky_origins = layers.relative(train.centers.double().numpy()).numpy()
-        missed = ~gbuffer.coverage
+    missed = ~gbuffer.coverage
+    if use_skybox or (missed.any() and not decisions.background_is_constant(field)[0]):
+        # the clear colour: what the missed training pixels show on average (skyboxes draw over it)
         bg = torch.as_tensor(targets[missed].mean(axis=0) if missed.any() else np.zeros(3), dtype=torch.float32)
     else:
         bg = decisions.background_color(field)

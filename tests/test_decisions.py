@@ -1,0 +1,51 @@
+"""Decisions from measurements: the atlas side from texel density."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from neuras_distill.geometry.mesh import MeshData
+from neuras_distill.pipeline.decisions import texel_density_resolution
+from neuras_distill.render.cameras import Cameras, look_at
+
+
+def _square(uv_scale: float) -> MeshData:
+    """A 1 x 1 square in the z = 0 plane facing +z, its uvs covering uv_scale^2 of the atlas."""
+    v = np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]], np.float32)
+    return MeshData(v, np.array([[0, 1, 2], [0, 2, 3]], np.int32), ((v[:, :2] + 0.5) * uv_scale).astype(np.float32))
+
+
+def _camera(distance: float, focal: float, size: int = 400) -> Cameras:
+    c2w = look_at(torch.tensor([0.0, 0.0, distance]), torch.zeros(3), torch.tensor([0.0, 1.0, 0.0]))
+    return Cameras(c2w[None].float(), focal, focal, size / 2, size / 2, size, size)
+
+
+def test_one_texel_per_pixel_on_a_square_seen_head_on():
+    # the square covers (focal / distance)^2 pixels: 100^2 here (exactly, at its centre's depth)
+    side, info = texel_density_resolution(_square(1.0), _camera(2.0, 200.0), multiple=1, lo=1)
+    assert info["pixels"] == pytest.approx(100.0 ** 2, rel=1e-6)
+    assert info["exact"] == pytest.approx(100.0, rel=1e-6) and side == 100
+    # the same pixels on a quarter of the atlas need twice the side; a closer camera (the largest view wins)
+    # needs more; rounding goes up to the multiple and the limits hold
+    assert texel_density_resolution(_square(0.5), _camera(2.0, 200.0), multiple=1, lo=1)[0] == 200
+    near, far = _camera(1.0, 200.0), _camera(4.0, 200.0)
+    both = Cameras(torch.cat([near.c2w, far.c2w]), 200.0, 200.0, 200.0, 200.0, 400, 400)
+    assert texel_density_resolution(_square(1.0), both, multiple=1, lo=1)[0] == 200
+    assert texel_density_resolution(_square(1.0), _camera(2.0, 200.0))[0] == 128          # lo and multiple of 64
+    assert texel_density_resolution(_square(0.01), _camera(2.0, 200.0), hi=2048)[0] == 2048
+
+
+def test_faces_behind_or_turned_away_count_nothing():
+    back = _camera(-2.0, 200.0)                          # behind the square: it faces away
+    assert texel_density_resolution(_square(1.0), back, multiple=1, lo=1)[1]["pixels"] == 0.0
+
+
+def test_training_budget_limits_the_atlas():
+    from neuras_distill.pipeline.decisions import training_budget_resolution
+
+    # 1,048,576 samples at 64 per texel feed 16,384 texels: 128^2 on a full atlas, 256^2 when a quarter is used
+    assert training_budget_resolution(1 << 20, 1.0, multiple=1, lo=1) == 128
+    assert training_budget_resolution(1 << 20, 0.25, multiple=1, lo=1) == 256
+    assert training_budget_resolution(10, 1.0) == 128
