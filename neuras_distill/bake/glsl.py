@@ -44,6 +44,64 @@ def _vec4(v: np.ndarray) -> str:
     return "vec4(" + ", ".join(glsl_float(x) for x in v) + ")"
 
 
+def dense_lines(out: list[str], w: np.ndarray, b: np.ndarray, in_names: list[str], prefix: str, act: str,
+                indent: str) -> list[str]:
+    """Append ``act(W x + b)`` as vec4 blocks (mat4 * vec4 per non-zero 4x4 block of the weights) and return
+    the output vec4 names ``<prefix>_<o>``. ``w`` (out, 4 * len(in_names)): its columns follow the inputs'
+    4-aligned layout. ``act``: "relu" or "none"."""
+    n_out = w.shape[0]
+    o4 = (n_out + 3) // 4
+    wp = np.zeros((4 * o4, w.shape[1]), np.float32)
+    wp[:n_out] = w
+    bp = np.zeros(4 * o4, np.float32)
+    bp[:n_out] = b
+    names = []
+    for o in range(o4):
+        terms = [_vec4(bp[4 * o:4 * o + 4])]
+        for c, name in enumerate(in_names):
+            block = wp[4 * o:4 * o + 4, 4 * c:4 * c + 4]
+            if np.any(block != 0):
+                terms.append(f"{_mat4(block)} * {name}")
+        expr = f"\n{indent}    + ".join(terms)
+        if act == "relu":
+            expr = f"max({expr}, 0.0)"
+        out.append(f"{indent}vec4 {prefix}_{o} = {expr};")
+        names.append(f"{prefix}_{o}")
+    return names
+
+
+def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, index: str, codebook: str, c4: int,
+                           prefix: str, indent: str) -> list[str]:
+    """Append the GLSL of a bilinear feature lookup at ``uv`` (``texture.bilinear_corners`` arithmetic: corners
+    clamped by CLAMP_TO_EDGE, blended c00, c10, c01, c11) and return the names of the ``c4`` vec4 results
+    ``<prefix>_<c>``. Shared by the mesh shader and the skybox shader."""
+    out += [
+        f"{indent}vec2 xy = {uv} * vec2({tex_w}.0, {tex_h}.0) - 0.5;",
+        f"{indent}vec2 b0 = floor(xy);",
+        f"{indent}vec2 f = xy - b0;",
+        f"{indent}vec2 g = 1.0 - f;",
+        f"{indent}float w00 = g.x * g.y;",
+        f"{indent}float w10 = f.x * g.y;",
+        f"{indent}float w01 = g.x * f.y;",
+        f"{indent}float w11 = f.x * f.y;",
+        # One gather at the exact centre of the 2x2 cell (unambiguous footprint); CLAMP_TO_EDGE does the
+        # border clamping. Components: x (i0, j1), y (i1, j1), z (i1, j0), w (i0, j0).
+        f"{indent}uvec4 k = textureGather({index}, (b0 + 1.0) / vec2({tex_w}.0, {tex_h}.0));",
+        f"{indent}int k00 = int(k.w);",
+        f"{indent}int k10 = int(k.z);",
+        f"{indent}int k01 = int(k.x);",
+        f"{indent}int k11 = int(k.y);",
+    ]
+    names = []
+    for c in range(c4):
+        out.append(f"{indent}vec4 {prefix}_{c} = w00 * texelFetch({codebook}, ivec2({c}, k00), 0)"
+                   f" + w10 * texelFetch({codebook}, ivec2({c}, k10), 0)"
+                   f" + w01 * texelFetch({codebook}, ivec2({c}, k01), 0)"
+                   f" + w11 * texelFetch({codebook}, ivec2({c}, k11), 0);")
+        names.append(f"{prefix}_{c}")
+    return names
+
+
 def generate_fragment_shader(model) -> str:
     """GLSL #version 330 core fragment shader for a trained ``NeuralTextureModel`` (see module docstring).
 
@@ -69,30 +127,8 @@ def generate_fragment_shader(model) -> str:
         "out vec4 f_color;",
         "",
         "void main() {",
-        f"    vec2 xy = v_uv * vec2({tex_w}.0, {tex_h}.0) - 0.5;",
-        "    vec2 b0 = floor(xy);",
-        "    vec2 f = xy - b0;",
-        "    vec2 g = 1.0 - f;",
-        "    ivec2 i0 = ivec2(b0);",
-        "    float w00 = g.x * g.y;",
-        "    float w10 = f.x * g.y;",
-        "    float w01 = g.x * f.y;",
-        "    float w11 = f.x * f.y;",
-        # One gather at the exact centre of the 2x2 cell (unambiguous footprint); CLAMP_TO_EDGE does the
-        # border clamping. Components: x (i0, j1), y (i1, j1), z (i1, j0), w (i0, j0).
-        f"    uvec4 k = textureGather(u_index, (b0 + 1.0) / vec2({tex_w}.0, {tex_h}.0));",
-        "    int k00 = int(k.w);",
-        "    int k10 = int(k.z);",
-        "    int k01 = int(k.x);",
-        "    int k11 = int(k.y);",
     ]
-    in_names = []
-    for c in range(c4):
-        out.append(f"    vec4 a0_{c} = w00 * texelFetch(u_codebook, ivec2({c}, k00), 0)"
-                   f" + w10 * texelFetch(u_codebook, ivec2({c}, k10), 0)"
-                   f" + w01 * texelFetch(u_codebook, ivec2({c}, k01), 0)"
-                   f" + w11 * texelFetch(u_codebook, ivec2({c}, k11), 0);")
-        in_names.append(f"a0_{c}")
+    in_names = bilinear_feature_lines(out, "v_uv", tex_w, tex_h, "u_index", "u_codebook", c4, "a0", "    ")
     if use_dir:
         out.append("    vec4 a0_d = vec4(normalize(v_world - u_cam_pos), 0.0);")
         in_names.append("a0_d")
@@ -106,28 +142,7 @@ def generate_fragment_shader(model) -> str:
     for n, (w, b) in enumerate(layers):
         if n == 0:
             w = cols
-        n_out = w.shape[0]
-        o4 = (n_out + 3) // 4
-        wp = np.zeros((4 * o4, w.shape[1]), np.float32)
-        wp[:n_out] = w
-        bp = np.zeros(4 * o4, np.float32)
-        bp[:n_out] = b
-        last = n == len(layers) - 1
-        names = []
-        for o in range(o4):
-            terms = [_vec4(bp[4 * o:4 * o + 4])]
-            for c, name in enumerate(in_names):
-                block = wp[4 * o:4 * o + 4, 4 * c:4 * c + 4]
-                if np.any(block != 0):
-                    terms.append(f"{_mat4(block)} * {name}")
-            expr = "\n        + ".join(terms)
-            nm = f"a{n + 1}_{o}"
-            if last:
-                out.append(f"    vec4 {nm} = {expr};")
-            else:
-                out.append(f"    vec4 {nm} = max({expr}, 0.0);")
-            names.append(nm)
-        in_names = names
+        in_names = dense_lines(out, w, b, in_names, f"a{n + 1}", "none" if n == len(layers) - 1 else "relu", "    ")
     out += [
         f"    vec3 rgb = 1.0 / (1.0 + exp(-{in_names[0]}.xyz));",
         "    f_color = vec4(rgb, 1.0);",

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .glsl import _mat4, _vec4, glsl_float
+from .glsl import bilinear_feature_lines, dense_lines, glsl_float
 
 SKY_VERTEX_SHADER = """#version 330
 const vec2 CORNERS[3] = vec2[](vec2(-1.0, -1.0), vec2(3.0, -1.0), vec2(-1.0, 3.0));
@@ -30,32 +30,6 @@ void main() {
     gl_Position = vec4(CORNERS[gl_VertexID], 1.0, 1.0);   // on the far plane: depth 1.0
 }
 """
-
-
-def _dense(lines: list[str], w: np.ndarray, b: np.ndarray, in_names: list[str], prefix: str,
-           act: str) -> list[str]:
-    """Emit ``act(W x + b)`` as vec4 blocks. ``w`` (out, 4 * len(in_names)) columns follow the inputs' layout.
-    Returns the output vec4 names."""
-    n_out = w.shape[0]
-    o4 = (n_out + 3) // 4
-    wp = np.zeros((4 * o4, w.shape[1]), np.float32)
-    wp[:n_out] = w
-    bp = np.zeros(4 * o4, np.float32)
-    bp[:n_out] = b
-    names = []
-    for o in range(o4):
-        terms = [_vec4(bp[4 * o:4 * o + 4])]
-        for c, name in enumerate(in_names):
-            block = wp[4 * o:4 * o + 4, 4 * c:4 * c + 4]
-            if np.any(block != 0):
-                terms.append(f"{_mat4(block)} * {name}")
-        expr = "\n            + ".join(terms)
-        if act == "relu":
-            expr = f"max({expr}, 0.0)"
-        nm = f"{prefix}_{o}"
-        lines.append(f"        vec4 {nm} = {expr};")
-        names.append(nm)
-    return names
 
 
 def _padded_columns(w: np.ndarray, widths: list[int]) -> np.ndarray:
@@ -110,50 +84,32 @@ def generate_sky_fragment_shader(skybox) -> str:
         "    for (int l = 0; l < LAYERS; ++l) {",
         "        float r = RADII[l];",
         "        vec3 t = (sg * r - o) / dd;",
-        "        int k = 0;",
+        "        int ax = 0;",
         "        float tm = t.x;",
-        "        if (t.y < tm) { tm = t.y; k = 1; }",
-        "        if (t.z < tm) { tm = t.z; k = 2; }",
+        "        if (t.y < tm) { tm = t.y; ax = 1; }",
+        "        if (t.z < tm) { tm = t.z; ax = 2; }",
         "        vec3 hit = o + tm * dd;",
-        "        float a = (k == 0 ? hit.y : (k == 1 ? hit.z : hit.x)) / r;",
-        "        float b = (k == 0 ? hit.z : (k == 1 ? hit.x : hit.y)) / r;",
-        "        int face = 2 * k + (dd[k] < 0.0 ? 1 : 0);",
+        "        float a = (ax == 0 ? hit.y : (ax == 1 ? hit.z : hit.x)) / r;",
+        "        float b = (ax == 0 ? hit.z : (ax == 1 ? hit.x : hit.y)) / r;",
+        "        int face = 2 * ax + (dd[ax] < 0.0 ? 1 : 0);",
         f"        float x = clamp((a * 0.5 + 0.5) * {fr}, 0.5, {glsl_float(f_res - 0.5)});",
         f"        float y = clamp((b * 0.5 + 0.5) * {fr}, 0.5, {glsl_float(f_res - 0.5)});",
         "        float col = float(face % 3);",
         "        float row = float(2 * l + face / 3);",
         f"        vec2 uv = vec2((col * {fr} + x) / {glsl_float(w_atlas)}, (row * {fr} + y) / {glsl_float(h_atlas)});",
-        f"        vec2 xy = uv * vec2({w_atlas}.0, {h_atlas}.0) - 0.5;",
-        "        vec2 b0 = floor(xy);",
-        "        vec2 f = xy - b0;",
-        "        vec2 g = 1.0 - f;",
-        "        float w00 = g.x * g.y;",
-        "        float w10 = f.x * g.y;",
-        "        float w01 = g.x * f.y;",
-        "        float w11 = f.x * f.y;",
-        f"        uvec4 kk = textureGather(u_sky_index, (b0 + 1.0) / vec2({w_atlas}.0, {h_atlas}.0));",
-        "        int k00 = int(kk.w);",
-        "        int k10 = int(kk.z);",
-        "        int k01 = int(kk.x);",
-        "        int k11 = int(kk.y);",
     ]
-    feat = []
-    for c in range(c4):
-        lines.append(f"        vec4 s0_{c} = w00 * texelFetch(u_sky_codebook, ivec2({c}, k00), 0)"
-                     f" + w10 * texelFetch(u_sky_codebook, ivec2({c}, k10), 0)"
-                     f" + w01 * texelFetch(u_sky_codebook, ivec2({c}, k01), 0)"
-                     f" + w11 * texelFetch(u_sky_codebook, ivec2({c}, k11), 0);")
-        feat.append(f"s0_{c}")
+    feat = bilinear_feature_lines(lines, "uv", w_atlas, h_atlas, "u_sky_index", "u_sky_codebook", c4, "s0",
+                                  "        ")
     w1, b1 = wts["l1"]
-    h = _dense(lines, _padded_columns(w1, [dim]), b1, feat, "s1", "relu")
+    h = dense_lines(lines, _padded_columns(w1, [dim]), b1, feat, "s1", "relu", "        ")
     wa, ba = wts["alpha"]
-    alpha = _dense(lines, _padded_columns(wa, [hidden]), ba, h, "sa", "none")
+    alpha = dense_lines(lines, _padded_columns(wa, [hidden]), ba, h, "sa", "none", "        ")
     lines.append(f"        float alpha = l == LAYERS - 1 ? 1.0 : 1.0 / (1.0 + exp(-{alpha[0]}.x));")
     lines.append("        vec4 sd = vec4(d, 0.0);")
     w2, b2 = wts["l2"]
-    h2 = _dense(lines, _padded_columns(w2, [hidden, 3]), b2, h + ["sd"], "s2", "relu")
+    h2 = dense_lines(lines, _padded_columns(w2, [hidden, 3]), b2, h + ["sd"], "s2", "relu", "        ")
     w3, b3 = wts["l3"]
-    rgb = _dense(lines, _padded_columns(w3, [hidden]), b3, h2, "s3", "none")
+    rgb = dense_lines(lines, _padded_columns(w3, [hidden]), b3, h2, "s3", "none", "        ")
     assert len(h) == h4
     lines += [
         f"        vec3 rgb = 1.0 / (1.0 + exp(-{rgb[0]}.xyz));",
