@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
 
     p = sub.add_parser("from-synthetic", help="an embedded synthetic scene through the whole pipeline")
-    p.add_argument("name", help="scene name (bunny, sphere, torus)")
+    p.add_argument("name", help="scene name (bunny, bunny-matte, sphere, torus, street)")
     p.add_argument("--kind", choices=["sdf", "density"], default="sdf", help="field type of the scene")
     _add_run_options(p)
 

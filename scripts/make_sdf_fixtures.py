@@ -175,6 +175,17 @@ def _gradient(f: torch.Tensor, p: torch.Tensor, create_graph: bool) -> torch.Ten
     return torch.autograd.grad(f.sum(), p, create_graph=create_graph, retain_graph=True)[0]
 
 
+def _step(opt, it: int, iters: int, start: float, loss_sdf, loss_eik, loss_rgb) -> None:
+    """One optimiser step on 10 L1(sdf) + 0.1 eikonal + L2(rgb), with a progress line every 500 steps."""
+    loss = 10.0 * loss_sdf + 0.1 * loss_eik + loss_rgb
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    opt.step()
+    if it % 500 == 0 or it == iters - 1:
+        print(f"  it {it:5d}  sdf L1 {loss_sdf.item():.5f}  eik {loss_eik.item():.4f}  "
+              f"rgb psnr {-10 * math.log10(max(loss_rgb.item(), 1e-10)):.2f}  ({time.perf_counter() - start:.0f} s)")
+
+
 def _legacy_wn(module: nn.ModuleList) -> dict:
     """State dict of weight-normed layers in the legacy ``nn.utils.weight_norm`` key names."""
     sd = {}
@@ -217,13 +228,7 @@ def make_neus(scene, out: Path, iters: int) -> dict:
         grad_c = _gradient(out_c[:, 0], pc, create_graph=False)
         pred = col_net(pc.detach(), grad_c.detach(), dc, out_c[:, 1:])
         loss_rgb = ((pred - rgb) ** 2).mean()
-        loss = 10.0 * loss_sdf + 0.1 * loss_eik + loss_rgb
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        if it % 500 == 0 or it == iters - 1:
-            print(f"  it {it:5d}  sdf L1 {loss_sdf.item():.5f}  eik {loss_eik.item():.4f}  "
-                  f"rgb psnr {-10 * math.log10(max(loss_rgb.item(), 1e-10)):.2f}  ({time.perf_counter() - start:.0f} s)")
+        _step(opt, it, iters, start, loss_sdf, loss_eik, loss_rgb)
     ckpt = {"nerf": {}, "sdf_network_fine": _legacy_wn(sdf_net.lins),
             "variance_network_fine": {"variance": torch.tensor(math.log(NEUS_INV_S) / 10.0)},
             "color_network_fine": _legacy_wn(col_net.lins), "iter_step": iters}
@@ -300,13 +305,7 @@ def make_nsr(scene, out: Path, iters: int) -> dict:
         n = F.normalize(_gradient(out_c[:, 0], pc, create_graph=False), dim=-1).detach()
         pred = torch.sigmoid(tex(torch.cat([out_c, sh_encode_deg4(dc), n], -1)))
         loss_rgb = ((pred - rgb) ** 2).mean()
-        loss = 10.0 * loss_sdf + 0.1 * loss_eik + loss_rgb
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        if it % 500 == 0 or it == iters - 1:
-            print(f"  it {it:5d}  sdf L1 {loss_sdf.item():.5f}  eik {loss_eik.item():.4f}  "
-                  f"rgb psnr {-10 * math.log10(max(loss_rgb.item(), 1e-10)):.2f}  ({time.perf_counter() - start:.0f} s)")
+        _step(opt, it, iters, start, loss_sdf, loss_eik, loss_rgb)
 
     sd = {"model.geometry.encoding.encoding.params": grid.flat_params().clone()}
     for k, mod in enumerate(geo.layers):

@@ -194,9 +194,11 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     test = test_full.resized(cfg.eval.width) if cfg.eval.width else test_full    # 0: the cameras' own size
     if root is not None:
         (root / "cameras.json").write_text(json.dumps({"train": train.to_json(), "test": test.to_json()}))
-    if cfg.skybox.mode != "off":            # distances given by the user are checked before any rendering
-        plan_layers(field.aabb, cameras.centers.double().numpy(), num_layers=cfg.skybox.layers,
-                    near=cfg.skybox.near or None, far=cfg.skybox.far or None, resolution=cfg.skybox.resolution)
+    sky_layers = None
+    if cfg.skybox.mode != "off":            # planned (and the user's distances checked) before any rendering
+        sky_layers = plan_layers(field.aabb, cameras.centers.double().numpy(), num_layers=cfg.skybox.layers,
+                                 near=cfg.skybox.near or None, far=cfg.skybox.far or None,
+                                 resolution=cfg.skybox.resolution)
     stages.done(train=len(train), test=len(test), train_size=[train.width, train.height],
                 test_size=[test.width, test.height])
 
@@ -264,10 +266,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     skybox = None
     sb = cfg.skybox
     if use_skybox:
-        layers = plan_layers(aabb64, cameras.centers.double().numpy(), num_layers=sb.layers,
-                             near=sb.near or None, far=sb.far or None, resolution=sb.resolution)
-        skybox = SkyboxModel(layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
-        sky_origins = layers.relative(train.centers.double().numpy()).numpy()
+        skybox = SkyboxModel(sky_layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
+        sky_origins = sky_layers.relative(train.centers.double().numpy()).numpy()
     missed = ~gbuffer.coverage
     if use_skybox or (missed.any() and not decisions.background_is_constant(field)[0]):
         # the clear colour: what the missed training pixels show on average (skyboxes draw over it)
