@@ -52,12 +52,11 @@ class GeometryConfig:
 
 @dataclass
 class TextureConfig:
-    resolution: int = 512
-    """Side of the square feature atlas in texels (about one texel per pixel of the training views on the demo:
-    a finer atlas leaves most texels seen by one or two pixels, which VQ turns into speckle). 0: chosen per
-    run from texel density (``pipeline.decisions.texel_density_resolution``), limited by the training budget
-    and ``max_resolution``. Not the default yet: on the street scene every atlas above 128^2 trained to
-    desaturated colours (with or without the VQ warm-up change), cause not found; see docs/architecture.md."""
+    resolution: int = 0
+    """Side of the square feature atlas in texels. 0 (default): chosen per run from texel density, one texel per
+    2 x 2 pixels of the training view that sees it largest (``pipeline.decisions.texel_density_resolution``),
+    limited by the training budget (256 samples per used texel) and ``max_resolution``; reported in
+    ``left_out``. A fixed side overrides it."""
     max_resolution: int = 2048
     """Upper limit of the automatic atlas side."""
     feature_dim: int = 8
@@ -112,8 +111,15 @@ class TrainConfig:
     """Patches per step."""
     patch: int = 16
     """Patch side in pixels (the SSIM term needs patches, not single rays)."""
-    ssim_weight: float = 0.2
-    """Weight of the (1 - SSIM) term; the L2 term has weight 1."""
+    ssim_weight: float = 0.0
+    """Weight of the (1 - SSIM) term; the L2 term has weight 1. Off by default: at 0.2 its gradient outweighed
+    the L2 term's by about 100x and training traded colour for structure (desaturated colours). Held-out PSNR
+    with 0 instead of 0.2 (same inputs, benchmarks/vq_schedule.py style): NeuS fixture 32.6 vs 32.0 dB,
+    instant-nsr-pl fixture 30.1 vs 28.9 dB, street (512^2) 27.4 vs 25.2-25.9 dB."""
+    vq_warmup: float = 1.0
+    """Fraction of the steps that train continuous features before the features are quantized (k-means
+    initialised codebook, straight-through training after). 1.0: quantize once, after training (measured
+    1.3-1.4 dB better on both SDF fixtures than 0.15; see neural/train.py)."""
     seed: int = 0
     """Random seed for initialisation and batches."""
 
@@ -155,6 +161,8 @@ class DistillConfig:
         require(t.view_dependence in ("auto", "on", "off"),
                 f"view_dependence must be auto, on or off, got {t.view_dependence!r}")
         require(tr.steps >= 1, f"training steps must be at least 1, got {tr.steps}")
+        require(0.0 <= tr.vq_warmup <= 1.0, f"vq_warmup must be in 0..1 (1: quantize after training), "
+                                            f"got {tr.vq_warmup}")
         require((self.eval.width == 0 or self.eval.width >= 16) and self.teacher.train_width >= 16,
                 "image widths must be at least 16 (eval width 0: the cameras' own size)")
         require(self.cameras.num_views >= 2, "need at least 2 views (some train, some held out)")

@@ -24,17 +24,20 @@ def _camera(distance: float, focal: float, size: int = 400) -> Cameras:
 
 def test_one_texel_per_pixel_on_a_square_seen_head_on():
     # the square covers (focal / distance)^2 pixels: 100^2 here (exactly, at its centre's depth)
-    side, info = texel_density_resolution(_square(1.0), _camera(2.0, 200.0), multiple=1, lo=1)
+    side, info = texel_density_resolution(_square(1.0), _camera(2.0, 200.0), pixels_per_texel=1,
+                                           multiple=1, lo=1)
     assert info["pixels"] == pytest.approx(100.0 ** 2, rel=1e-6)
     assert info["exact"] == pytest.approx(100.0, rel=1e-6) and side == 100
     # the same pixels on a quarter of the atlas need twice the side; a closer camera (the largest view wins)
     # needs more; rounding goes up to the multiple and the limits hold
-    assert texel_density_resolution(_square(0.5), _camera(2.0, 200.0), multiple=1, lo=1)[0] == 200
+    assert texel_density_resolution(_square(0.5), _camera(2.0, 200.0), pixels_per_texel=1, multiple=1, lo=1)[0] == 200
     near, far = _camera(1.0, 200.0), _camera(4.0, 200.0)
     both = Cameras(torch.cat([near.c2w, far.c2w]), 200.0, 200.0, 200.0, 200.0, 400, 400)
-    assert texel_density_resolution(_square(1.0), both, multiple=1, lo=1)[0] == 200
+    assert texel_density_resolution(_square(1.0), both, pixels_per_texel=1, multiple=1, lo=1)[0] == 200
+    # by default a texel spans 2 x 2 pixels of the view that sees it largest: half the side
+    assert texel_density_resolution(_square(1.0), both, multiple=1, lo=1)[0] == 100
     assert texel_density_resolution(_square(1.0), _camera(2.0, 200.0))[0] == 128          # lo and multiple of 64
-    assert texel_density_resolution(_square(0.01), _camera(2.0, 200.0), hi=2048)[0] == 2048
+    assert texel_density_resolution(_square(0.004), _camera(2.0, 200.0), hi=2048)[0] == 2048
 
 
 def test_faces_behind_or_turned_away_count_nothing():
@@ -46,6 +49,7 @@ def test_training_budget_limits_the_atlas():
     from neuras_distill.pipeline.decisions import training_budget_resolution
 
     # 1,048,576 samples at 64 per texel feed 16,384 texels: 128^2 on a full atlas, 256^2 when a quarter is used
-    assert training_budget_resolution(1 << 20, 1.0, multiple=1, lo=1) == 128
-    assert training_budget_resolution(1 << 20, 0.25, multiple=1, lo=1) == 256
+    assert training_budget_resolution(1 << 20, 1.0, per_texel=64, multiple=1, lo=1) == 128
+    assert training_budget_resolution(1 << 20, 0.25, per_texel=64, multiple=1, lo=1) == 256
+    assert training_budget_resolution(1 << 22, 1.0, multiple=1, lo=1) == 128           # 256 per texel by default
     assert training_budget_resolution(10, 1.0) == 128

@@ -255,7 +255,8 @@ def test_fit_reaches_psnr_on_smooth_target():
     data = synthetic_gbuffer()
     model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=256, use_vq=True)
     start = _psnr(model, *data)
-    log = fit(model, *data, steps=250, batch_patches=8, patch=16, progress=False, log_every=25, num_threads=1)
+    log = fit(model, *data, steps=250, batch_patches=8, patch=16, progress=False, log_every=25, num_threads=1,
+              vq_warmup=0.15)
     end = _psnr(model, *data)
     assert start < 20 and end > 30, (start, end)
     assert log.steps == 250 and log.stopped_by == "steps"
@@ -265,6 +266,24 @@ def test_fit_reaches_psnr_on_smooth_target():
     assert all({"step", "seconds", "loss", "psnr"} <= set(e) for e in log.entries)
     assert 0 < log.touched_fraction < 1 and log.filled_texels > 0
     assert not model.training
+
+
+def test_fit_quantizes_after_training_by_default():
+    """Default schedule: continuous features all along, k-means codes after the last step. On the same data
+    and seed it beats quantizing from 15 % of the run (measured 33.7 vs 29.7 dB with 64 codes), and the code
+    stats come from the texels' assignments."""
+    def trained(**kwargs):
+        torch.manual_seed(0)
+        data = synthetic_gbuffer()
+        model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True)
+        log = fit(model, *data, steps=250, batch_patches=8, patch=16, progress=False, num_threads=1, **kwargs)
+        return model, log, _psnr(model, *data)
+
+    model, log, after = trained()
+    _, early_log, early = trained(vq_warmup=0.15)
+    assert log.vq_start_step == 250 and model.quantizing and early_log.vq_start_step < 50
+    assert after > 32 and after > early + 2, (after, early)
+    assert 0.2 < log.vq_stats["used_fraction"] <= 1.0 and log.vq_stats["perplexity"] > 10, log.vq_stats
 
 
 def test_fit_time_budget_and_bad_input():

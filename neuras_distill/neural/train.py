@@ -5,6 +5,8 @@ Owns: :func:`fit` and :class:`TrainLog`.
 Decisions:
 - Batches are random square patches (``patch`` x ``patch``) centred on random covered pixels of random views
   (clamped into the image); the loss is ``L2 on covered pixels + ssim_weight * (1 - SSIM) + vq_weight * vq_loss``.
+  ``ssim_weight`` defaults to 0: with 0.2 the SSIM gradient dominated and colours came out desaturated
+  (1.2 dB lower held-out PSNR on the instant-nsr-pl fixture, 1.5-2 dB on the street scene).
   For SSIM the uncovered pixels of the prediction are set to the target, and the SSIM map is averaged over
   covered window centres.
 - Optimisers: the texture (H*W*D, mostly untouched by a step) uses ``SparseAdam`` on sparse gradients, so a
@@ -13,8 +15,14 @@ Decisions:
   gradients every step; on the synthetic test 3x gained ~3-6 dB at equal steps over 1x, 5x was no better).
   The MLP at lr/2 was ~2 dB worse.
   Both decay exponentially to 0.1x over the run (progress = max(step/steps, elapsed/time_budget_s)).
-- VQ warm-up: the first ``vq_warmup`` fraction (default 0.15) of the run trains continuous features; then the
-  codebook is k-means-initialised from the touched texels and the model is quantized from there on.
+- VQ schedule: the first ``vq_warmup`` fraction of the run trains continuous features; then the codebook is
+  k-means-initialised from the touched texels and the model is quantized from there on. The default 1.0
+  quantizes once, after training: k-means of the trained texels, and the codes are exactly what is evaluated
+  and baked. Training under quantization (straight-through) from 15 % of a short run cost 1.4 dB on the NeuS
+  fixture (29.1 vs 30.6 dB held-out, 1500 steps) and 1.3 dB on the instant-nsr-pl one, with paler colours:
+  a texel's quantized value only changes when its feature crosses into another code's cell, so most of the
+  run trained the atlas at a fraction of its speed. k-means of the continuously trained atlas (1024 codes)
+  lost 0.0-0.1 dB against the continuous atlas (``benchmarks/vq_schedule.py``).
 - Touched texels are recorded all along; at the end untouched texels get the nearest touched feature
   (:meth:`NeuralTextureModel.fill_unseen_texels`).
 - Skyboxes (optional ``skybox``): patches are then centred on any pixel, every pixel of a patch counts, and
@@ -79,8 +87,8 @@ def _as_tensor(x, dtype, name: str, shape_tail: tuple, lead: tuple | None = None
 
 
 def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, lr: float = 0.01,
-        texture_lr: float | None = None, batch_patches: int = 32, patch: int = 16, ssim_weight: float = 0.2,
-        vq_weight: float = 1.0, vq_warmup: float = 0.15, lr_final_ratio: float = 0.1,
+        texture_lr: float | None = None, batch_patches: int = 32, patch: int = 16, ssim_weight: float = 0.0,
+        vq_weight: float = 1.0, vq_warmup: float = 1.0, lr_final_ratio: float = 0.1,
         time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
         seed: int = 0, num_threads: int | None = None, skybox=None, origins=None) -> TrainLog:
     """Train ``model`` on teacher images.
@@ -91,7 +99,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
         lr: MLP and codebook learning rate; texture_lr: texture learning rate (default 3 * lr).
         batch_patches, patch: patches per step and their side in pixels.
-        ssim_weight, vq_weight: loss weights; vq_warmup: fraction of the run before quantization starts.
+        ssim_weight, vq_weight: loss weights; vq_warmup: fraction of the run before quantization starts
+            (1.0: quantize after training).
         log_every: steps between log entries (default steps // 50).
         num_threads: torch intra-op threads during the loop (restored after); None leaves torch's setting.
             On a busy shared CPU, 1 thread avoids OpenMP oversubscription (measured 108 vs 1.8 steps/s).
@@ -165,7 +174,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
                     log.stopped_by = "time_budget"
                     break
                 frac = max(frac, elapsed / time_budget_s)
-            if model.use_vq and not model.quantizing and frac >= vq_warmup:
+            if model.use_vq and not model.quantizing and vq_warmup < 1.0 and frac >= vq_warmup:
                 for m_ in models:
                     m_.start_vq()
                 log.vq_start_step = step
@@ -228,12 +237,12 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             m_.record_touched = False
     log.steps = step
     log.steps_per_second = step / max(log.seconds, 1e-9)
-    if model.use_vq and not model.quantizing:      # stopped before the warm-up ended: quantize anyway
+    if model.use_vq and not model.quantizing:      # quantize after training (or the warm-up outlasted the run)
         for m_ in models:
             m_.start_vq()
         log.vq_start_step = step
     if model.vq is not None:
-        log.vq_stats = model.vq.stats()
+        log.vq_stats = {**model.vq.stats(), **_texel_code_stats(model)}
     log.touched_fraction = float(model.touched.float().mean())
     log.filled_texels = model.fill_unseen_texels()
     model.eval()
@@ -242,3 +251,16 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         skybox.atlas.fill_unseen_texels()
         skybox.eval()
     return log
+
+
+@torch.no_grad()
+def _texel_code_stats(model: NeuralTextureModel) -> dict:
+    """Code usage over the trained (touched) texels: {"perplexity", "used_fraction"} of their assignments.
+
+    This replaces the training-time usage EMA, which says nothing when quantization starts after training."""
+    flat = model.texture.flat.detach()
+    sel = torch.nonzero(model.touched).flatten()
+    idx = model.vq.quantize_all(flat[sel] if sel.numel() else flat)
+    used = int(torch.unique(idx).numel())
+    return {"perplexity": model.vq.perplexity_of(idx, model.vq.num_codes),
+            "used_fraction": used / model.vq.num_codes}

@@ -238,10 +238,11 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                              f"automatic) or lower --face-budget")
     if auto_res:
         capped = density["exact"] > cfg.texture.max_resolution
+        ppt = decisions.PIXELS_PER_TEXEL
         left_out.append({"component": "texels beyond the training views' detail",
                          "reason": f"atlas {tex_res}x{tex_res} chosen from texel density: the training views see "
                                    f"{density['pixels']:.0f} pixels of surface on {100 * density['uv_area']:.1f}% "
-                                   f"of the atlas, about one texel per pixel at {density['exact']:.0f}"
+                                   f"of the atlas, one texel per {ppt:g}x{ppt:g} pixels at {density['exact']:.0f}"
                                    + (f" (capped at max_resolution {cfg.texture.max_resolution})" if capped else "")
                                    + (f"; limited to {density['budget']} by the training budget ({density['samples']} "
                                       f"samples, {decisions.SAMPLES_PER_TEXEL} per used texel)"
@@ -285,7 +286,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                                hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir)
     train_log = fit(model, gbuffer.uv, gbuffer.coverage, dirs, targets, steps=cfg.train.steps,
                     lr=cfg.train.lr, batch_patches=cfg.train.batch_patches, patch=cfg.train.patch,
-                    ssim_weight=cfg.train.ssim_weight, time_budget_s=cfg.train.time_budget_s or None,
+                    ssim_weight=cfg.train.ssim_weight, vq_warmup=cfg.train.vq_warmup,
+                    time_budget_s=cfg.train.time_budget_s or None,
                     progress=progress, seed=cfg.train.seed, skybox=skybox,
                     origins=sky_origins if skybox is not None else None)
     train_history = list(train_log.entries)
