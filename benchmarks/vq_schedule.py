@@ -24,10 +24,6 @@ import numpy as np
 import torch
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(-10.0 * np.log10(max(float(np.mean((a - b) ** 2)), 1e-12)))
-
-
 def prepare(args):
     """(field, train cameras, held-out cameras, teacher images, held-out images, background)."""
     from neuras_distill.pipeline import decisions, evaluate
@@ -58,6 +54,7 @@ def gbuffers(field, train, test, side: int, args):
 
 
 def score(variant: str, side: int, data, args) -> dict:
+    from neuras_distill.metrics import psnr
     from neuras_distill.neural.model import NeuralTextureModel
     from neuras_distill.neural.train import fit
 
@@ -70,7 +67,7 @@ def score(variant: str, side: int, data, args) -> dict:
     fit(model, gb_train.uv, gb_train.coverage, dirs_train, targets, steps=args.steps, vq_warmup=warmup,
         ssim_weight=args.ssim_weight, progress=False, num_threads=args.threads)
     seconds = time.perf_counter() - t0
-    psnrs = [_psnr(model.render_gbuffer(gb_test.uv[i], gb_test.coverage[i], dirs_test[i], bg), test_images[i])
+    psnrs = [psnr(model.render_gbuffer(gb_test.uv[i], gb_test.coverage[i], dirs_test[i], bg), test_images[i])
              for i in range(len(test_images))]
     return {"side": side, "variant": variant, "psnr": float(np.mean(psnrs)), "train_seconds": seconds}
 

@@ -57,13 +57,17 @@ class NeuralTextureModel(nn.Module):
             self.vq.owned_codes = self._owned_codes
 
     @torch.no_grad()
-    def _owned_codes(self) -> torch.Tensor:
-        """(K,) bool: codes the touched texels (all texels before any was recorded) quantize to now."""
+    def trained_texel_codes(self) -> torch.Tensor:
+        """(M,) int64: the nearest code of every touched texel (of all texels before any was recorded)."""
         flat = self.texture.flat.detach()
         sel = torch.nonzero(self.touched).flatten()
-        z = flat[sel] if sel.numel() else flat
-        owned = torch.zeros(self.vq.num_codes, dtype=torch.bool, device=flat.device)
-        owned[self.vq.quantize_all(z)] = True
+        return self.vq.quantize_all(flat[sel] if sel.numel() else flat)
+
+    @torch.no_grad()
+    def _owned_codes(self) -> torch.Tensor:
+        """(K,) bool: codes the touched texels (all texels before any was recorded) quantize to now."""
+        owned = torch.zeros(self.vq.num_codes, dtype=torch.bool, device=self.texture.data.device)
+        owned[self.trained_texel_codes()] = True
         return owned
 
     @property

@@ -258,9 +258,7 @@ def _texel_code_stats(model: NeuralTextureModel) -> dict:
     """Code usage over the trained (touched) texels: {"perplexity", "used_fraction"} of their assignments.
 
     This replaces the training-time usage EMA, which says nothing when quantization starts after training."""
-    flat = model.texture.flat.detach()
-    sel = torch.nonzero(model.touched).flatten()
-    idx = model.vq.quantize_all(flat[sel] if sel.numel() else flat)
+    idx = model.trained_texel_codes()
     used = int(torch.unique(idx).numel())
     return {"perplexity": model.vq.perplexity_of(idx, model.vq.num_codes),
             "used_fraction": used / model.vq.num_codes}
