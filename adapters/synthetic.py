@@ -42,4 +42,4 @@ class SyntheticAdapter:
             except (ValueError, KeyError, TypeError, UnicodeDecodeError):
                 raise BadInputError(f"{path}: not a valid synthetic scene file "
                                     '(expected {"neuras_synthetic": {"scene": NAME, "kind": "sdf"}})') from None
-        return make_scene(scene, kind=kind or file_kind or "sdf", **options)
+        return make_scene(scene, kind=kind or file_kind, **options)  # None: the scene's own kind

@@ -40,8 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
 
     p = sub.add_parser("from-synthetic", help="an embedded synthetic scene through the whole pipeline")
-    p.add_argument("name", help="scene name (bunny, bunny-matte, sphere, torus, street)")
-    p.add_argument("--kind", choices=["sdf", "density"], default="sdf", help="field type of the scene")
+    p.add_argument("name", help="scene name (bunny, bunny-matte, sphere, torus, street, gradient-ball)")
+    p.add_argument("--kind", choices=["sdf", "density"], default=None,
+                   help="field type of the scene (default: the scene's own, sdf; density for gradient-ball)")
     _add_run_options(p)
 
     p = sub.add_parser("from-ngp", help="an Instant-NGP snapshot (.ingp / .msgpack) through the whole pipeline")
@@ -105,7 +106,7 @@ def _run_scene(args, name: str) -> int:
     if name == "street" and args.preset is None and args.config is None:
         args.preset = "street"          # its preset fits the scene to this machine (configs/street.toml)
     cfg = _config_from_args(args)
-    out = Path(args.out or f"runs/{name}" + ("" if args.kind == "sdf" else f"-{args.kind}"))
+    out = Path(args.out or f"runs/{name}" + ("" if args.kind in (None, "sdf") else f"-{args.kind}"))
     check_output_folder(out.resolve())  # fail before any work
     field = make_scene(name, kind=args.kind)
     distill(field, None, cfg, out, progress=not args.quiet,

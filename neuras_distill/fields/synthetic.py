@@ -2,8 +2,10 @@
 
 This module owns:
 
-* :data:`SCENES` (name -> factory) and :func:`make_scene` (``kind="sdf"`` or ``"density"``). Names:
-  ``"bunny"`` (the default/demo scene), ``"bunny-matte"`` (the same without its highlight), ``"sphere"``, ``"torus"``, ``"street"`` (:mod:`.street`).
+* :data:`SCENES` (name -> factory) and :func:`make_scene` (``kind`` ``"sdf"`` or ``"density"``, default the
+  scene's own). Names:
+  ``"bunny"`` (the default/demo scene), ``"bunny-matte"`` (the same without its highlight), ``"sphere"``, ``"torus"``, ``"street"`` (:mod:`.street`),
+  ``"gradient-ball"`` (:mod:`.gradient_ball`, a density field only).
 * :class:`BunnyField`: the real Stanford bunny (``neuras_distill/data/bunny.obj``, y-up in the file) rotated
   to z-up, scaled to 1 unit tall, standing on a rounded disc. Its SDF is computed once with open3d
   (``RaycastingScene.compute_signed_distance`` with a majority vote over several rays for the sign, since
@@ -34,6 +36,7 @@ import torch.nn.functional as F
 
 from ..errors import BadInputError
 from .analytic import SDFToDensityField, SphereSDF, TorusSDF, orbit_framing
+from .gradient_ball import make_gradient_ball
 from .street import STREET_BETA, make_street
 
 BUNNY_OBJ = Path(__file__).resolve().parent.parent / "data" / "bunny.obj"
@@ -325,17 +328,25 @@ def _torus() -> TorusSDF:
 
 
 SCENES: dict[str, Callable[[], object]] = {"bunny": _bunny, "bunny-matte": _bunny_matte, "sphere": _sphere,
-                                           "torus": _torus, "street": make_street}
+                                           "torus": _torus, "street": make_street,
+                                           "gradient-ball": make_gradient_ball}
 DEFAULT_SCENE = "bunny"
 SCENE_BETA = {"bunny": BUNNY_BETA, "bunny-matte": BUNNY_BETA, "sphere": BUNNY_BETA, "torus": BUNNY_BETA, "street": STREET_BETA}
 
 
-def make_scene(name: str = DEFAULT_SCENE, kind: str = "sdf"):
-    """Build the embedded scene ``name`` as a field of ``kind`` ``"sdf"`` or ``"density"`` (VolSDF Laplace
-    density of the same SDF with the scene's β, same radiance, aabb, background and cameras)."""
+def make_scene(name: str = DEFAULT_SCENE, kind: str | None = None):
+    """Build the embedded scene ``name`` as a field of ``kind``: ``None`` (default) gives the scene's own kind
+    (``"sdf"``, or ``"density"`` for ``gradient-ball``); ``"density"`` of an SDF scene is the VolSDF Laplace
+    density of the same SDF with the scene's β (same radiance, aabb, background and cameras). A density scene
+    has no SDF: ``kind="sdf"`` is refused for it."""
     if name not in SCENES:
         raise BadInputError(f"unknown synthetic scene {name!r}; available: {', '.join(sorted(SCENES))}")
-    if kind not in ("sdf", "density"):
+    if kind not in (None, "sdf", "density"):
         raise BadInputError(f"unknown field kind {kind!r} for a synthetic scene; use 'sdf' or 'density'")
     field = SCENES[name]()
-    return field if kind == "sdf" else SDFToDensityField(field, SCENE_BETA[name])
+    if kind is None or kind == field.kind:
+        return field
+    if field.kind == "density":
+        raise BadInputError(f"synthetic scene {name!r} is a density field with no signed distance; "
+                            "use kind 'density' (--kind density)")
+    return SDFToDensityField(field, SCENE_BETA[name])
