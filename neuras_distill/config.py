@@ -42,7 +42,13 @@ class GeometryConfig:
     face_budget: int = 40_000
     """Maximum number of faces after quadric decimation."""
     cull_unseen: bool = True
-    """Drop faces that no training camera sees."""
+    """Drop faces that no camera near the training cameras sees."""
+    cull_margin_deg: float = 15.0
+    """Culling is conservative: faces seen by each training camera turned by this angle (degrees) about its
+    look-at point are kept too, so held-out and user views a little outside the training range see no holes."""
+    enclose_fringe: str = "auto"
+    """"auto": move the iso-level outwards until the mesh covers the pixels where the field is partly opaque
+    (its soft fringe), when the background is one constant colour; "on", "off"."""
     cull_back_faces: bool = True
     """Cull back faces when rasterizing (G-buffers and playback alike): invisible on closed meshes, and
     playback shades half as many fragments."""
@@ -101,10 +107,13 @@ class SkyboxConfig:
 
 @dataclass
 class TrainConfig:
-    steps: int = 1500
-    """Optimisation steps."""
+    steps: int = 0
+    """Optimisation steps. 0 (default): planned per run from what the scene needs, 256 training samples per
+    used texel of the atlas (``pipeline.decisions.training_steps``), within the time budget; reported in the
+    report's ``training_plan``."""
     time_budget_s: float = 0.0
-    """Stop training after this many seconds (0: no limit)."""
+    """Stop training after this many seconds. 0 (default): half of the time the run spends volume rendering
+    the field (teacher renders plus held-out evaluation, ``decisions.training_time_budget``)."""
     lr: float = 0.01
     """Adam learning rate (NeuRas uses 0.01)."""
     batch_patches: int = 32
@@ -153,6 +162,9 @@ class DistillConfig:
         require(g.face_budget >= 4, f"face budget must be at least 4 faces, got {g.face_budget}; "
                                     "pass e.g. --face-budget 40000")
         require(g.grid_resolution >= 16, f"grid resolution must be at least 16, got {g.grid_resolution}")
+        require(0.0 <= g.cull_margin_deg < 90.0, f"cull_margin_deg must be in 0..90 degrees, got {g.cull_margin_deg}")
+        require(g.enclose_fringe in ("auto", "on", "off"),
+                f"enclose_fringe must be auto, on or off, got {g.enclose_fringe!r}")
         require(t.resolution == 0 or 16 <= t.resolution <= 8192,
                 f"texture resolution must be 0 (automatic) or in 16..8192, got {t.resolution}")
         require(64 <= t.max_resolution <= 8192, f"max texture resolution must be in 64..8192, got {t.max_resolution}")
@@ -160,7 +172,8 @@ class DistillConfig:
         require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
         require(t.view_dependence in ("auto", "on", "off"),
                 f"view_dependence must be auto, on or off, got {t.view_dependence!r}")
-        require(tr.steps >= 1, f"training steps must be at least 1, got {tr.steps}")
+        require(tr.steps >= 0, f"training steps must be at least 1 (0: automatic), got {tr.steps}")
+        require(tr.time_budget_s >= 0, f"training time budget must be positive (0: automatic), got {tr.time_budget_s}")
         require(0.0 <= tr.vq_warmup <= 1.0, f"vq_warmup must be in 0..1 (1: quantize after training), "
                                             f"got {tr.vq_warmup}")
         require((self.eval.width == 0 or self.eval.width >= 16) and self.teacher.train_width >= 16,

@@ -4,14 +4,26 @@ Both take (H, W, 3) float arrays in [0, 1] (data range 1). PSNR clamps the MSE a
 give 100 dB instead of inf; averages over several images are means of per-image values, never pooled MSE.
 SSIM uses an 11x11 Gaussian window (sigma 1.5), C1 = 0.01^2, C2 = 0.03^2, computed in float64 and averaged
 over the valid (un-padded) region and the three channels, as in Wang et al. 2004.
+
+Region metrics split a view by the field's own opacity (H, W) of that view:
+- silhouette band: pixels within ``band`` px (default ``band_width``: max(2, round(0.004 * image diagonal)),
+  9 px at 1920x1080) of the boundary of the mask ``opacity > 0.5`` on either side, plus every pixel with
+  0.02 < opacity < 0.98 (the soft fringe);
+- interior: pixels with opacity > 0.98 that are not in the band;
+- hole: the field is opaque (opacity > 0.5) but the bundle's mesh covers no pixel there.
+FLIP lives in ``flip_metric`` (the one module that imports flip-evaluator) and is re-exported here.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
+from scipy.ndimage import distance_transform_edt, gaussian_filter
+
+from .flip_metric import flip  # noqa: F401  (re-exported: metrics.flip)
 
 MAX_PSNR = 100.0
+OPAQUE = 0.5          # the field's mask: opacity > OPAQUE
+FRINGE = (0.02, 0.98)  # soft fringe: FRINGE[0] < opacity < FRINGE[1]; interior: opacity > FRINGE[1]
 
 
 def psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:
@@ -61,3 +73,51 @@ def error_heatmap(image: np.ndarray, reference: np.ndarray, full_scale: float = 
     g = np.clip(3 * t - 1, 0, 1)
     b = np.clip(3 * t - 2, 0, 1)
     return np.stack([r, g, b], axis=-1).astype(np.float32)
+
+
+def band_width(height: int, width: int) -> int:
+    """Default silhouette band half-width in pixels: max(2, round(0.004 * diagonal)) (9 at 1920x1080)."""
+    return max(2, int(round(0.004 * float(np.hypot(height, width)))))
+
+
+def silhouette_band(opacity: np.ndarray, band: int | None = None) -> np.ndarray:
+    """(H, W) bool: pixels within ``band`` px (Euclidean, default ``band_width``) of the boundary of the mask
+    ``opacity > 0.5`` on either side, plus the soft fringe 0.02 < opacity < 0.98. ``opacity`` is (H, W)."""
+    op = np.asarray(opacity, dtype=np.float32)
+    if op.ndim != 2:
+        raise ValueError(f"silhouette_band: expected an (H, W) opacity, got {op.shape}")
+    band = band_width(*op.shape) if band is None else int(band)
+    inside = op > OPAQUE
+    near = np.zeros_like(inside)
+    if inside.any() and not inside.all():
+        # distance of an inside pixel to the nearest outside pixel (1 next to the boundary), and vice versa
+        near = np.where(inside, distance_transform_edt(inside), distance_transform_edt(~inside)) <= band
+    return near | ((op > FRINGE[0]) & (op < FRINGE[1]))
+
+
+def interior_mask(opacity: np.ndarray, band_mask: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) bool: opacity > 0.98 and not in the silhouette band (``band_mask`` (H, W) bool, default
+    ``silhouette_band(opacity)``)."""
+    op = np.asarray(opacity, dtype=np.float32)
+    band_mask = silhouette_band(op) if band_mask is None else band_mask
+    return (op > FRINGE[1]) & ~band_mask
+
+
+def hole_mask(opacity: np.ndarray, coverage: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the field is opaque (opacity > 0.5) and the bundle's mesh covers nothing (``coverage``
+    (H, W) bool False)."""
+    op = np.asarray(opacity, dtype=np.float32)
+    cov = np.asarray(coverage, dtype=bool)
+    if op.shape != cov.shape:
+        raise ValueError(f"hole_mask: opacity {op.shape} and coverage {cov.shape} differ")
+    return (op > OPAQUE) & ~cov
+
+
+def hole_fraction(opacity: np.ndarray, coverage: np.ndarray) -> float:
+    """Fraction of ALL pixels of the (H, W) view that are holes (``hole_mask``)."""
+    return float(hole_mask(opacity, coverage).mean())
+
+
+def region_psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float | None:
+    """PSNR over the (H, W) bool ``mask`` only; None when the mask is empty (no region, no score)."""
+    return psnr(image, reference, mask) if np.asarray(mask, bool).any() else None

@@ -18,9 +18,9 @@ from neuras_distill.geometry.mesh import MeshData
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0):
+def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0, use_facing=False):
     torch.manual_seed(seed)
-    m = NeuralTextureModel(h, w, feature_dim=dim, num_codes=k, use_viewdir=use_viewdir)
+    m = NeuralTextureModel(h, w, feature_dim=dim, num_codes=k, use_viewdir=use_viewdir, use_facing=use_facing)
     with torch.no_grad():
         m.texture.data.normal_(0.0, 1.0)
         for layer in m.shader.layers:
@@ -134,10 +134,11 @@ def gl_context():
         pytest.skip(f"no headless GL context: {exc}")
 
 
-@pytest.mark.parametrize("use_viewdir,dim", [(True, 8), (False, 6)])
-def test_glsl_parity_with_torch(use_viewdir, dim):
+@pytest.mark.parametrize("use_viewdir,dim,use_facing", [(True, 8, False), (False, 6, False), (True, 8, True),
+                                                        (False, 5, True)])
+def test_glsl_parity_with_torch(use_viewdir, dim, use_facing):
     moderngl, ctx = gl_context()
-    m = make_model(use_viewdir=use_viewdir, dim=dim)
+    m = make_model(use_viewdir=use_viewdir, dim=dim, use_facing=use_facing)
     b = bake(m, quad_mesh(), (0, 0, 0))
     res = 96
     uv0, uv_scale = np.float32([-0.1, -0.05]), np.float32([1.2, 1.1])    # a border of clamped lookups
@@ -146,7 +147,7 @@ def test_glsl_parity_with_torch(use_viewdir, dim):
         prog = ctx.program(vertex_shader=VERT, fragment_shader=b.fragment_shader)
         prog["u_uv0"].value = tuple(uv0)
         prog["u_uv_scale"].value = tuple(uv_scale)
-        if use_viewdir:
+        if use_viewdir or use_facing:
             prog["u_cam_pos"].value = tuple(cam)
         else:
             assert "u_cam_pos" not in prog
@@ -179,10 +180,15 @@ def test_glsl_parity_with_torch(use_viewdir, dim):
     world = np.stack([2 * tx - 1, np.zeros_like(tx), 2 * ty - 1], -1)
     d = world - cam
     dirs = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    if use_facing:              # the quad lies in the plane y = 0: |n . d| = |d_y|
+        dirs = np.concatenate([dirs, np.abs(dirs[..., 1:2])], axis=-1)
+        no_facing = m.render_gbuffer(uv, np.ones((res, res), bool), np.concatenate([dirs[..., :3], 0 * dirs[..., 3:]], -1),
+                                     np.zeros(3))
+        assert np.abs(no_facing - gl).max() > 1e-2       # the facing input changes the picture
     ref = m.render_gbuffer(uv, np.ones((res, res), bool), dirs, np.zeros(3))
     diff = np.abs(gl - ref)
     mse = float((diff ** 2).mean())
     psnr = 10 * np.log10(1.0 / max(mse, 1e-20))
     assert ref.std() > 0.05          # the test image is not flat
     assert diff.max() <= 1e-3 and psnr >= 60.0, (diff.max(), psnr)
-    print(f"parity use_viewdir={use_viewdir}: max abs diff {diff.max():.2e}, PSNR {psnr:.1f} dB")
+    print(f"parity use_viewdir={use_viewdir} use_facing={use_facing}: max abs diff {diff.max():.2e}, PSNR {psnr:.1f} dB")

@@ -62,7 +62,9 @@ def test_from_ngp_on_the_trained_snapshot(tmp_path):
 
     origin = json.loads((out / "bundle" / "manifest.json").read_text())["origin"]
     v = np.load(mesh)["vertices"] + np.asarray(origin, np.float32)   # stored relative to the scene centre
-    assert -0.3 < v[:, 2].min() < 0.1 and 0.8 < v[:, 2].max() < 1.2
+    # (conservative culling keeps the snapshot's fog under the base, down to z = -0.44, which cameras a
+    # little below the training orbit would see: the bulk of the mesh is the bunny)
+    assert 0.1 < np.median(v[:, 2]) < 0.6 and 0.8 < v[:, 2].max() < 1.2 and v[:, 2].min() > -0.6
 
 
 def test_from_sdf_on_the_trained_neus_checkpoint(tmp_path):

@@ -261,7 +261,7 @@ def test_cull_keeps_front_removes_back():
                                  torch.tensor([0.0, 0.0, 1.0])) for a in (-0.1, 0.0, 0.1)]).float()
     f = 0.5 * 200 / math.tan(math.radians(10))
     cams = Cameras(poses, f, f, 100.0, 75.0, 200, 150)
-    out = cull_unseen_faces(mesh, cams)
+    out = cull_unseen_faces(mesh, cams, margin_deg=0)
     frac = out.stats["culled_faces"] / mesh.num_faces
     print(f"culled {out.stats['culled_faces']} of {mesh.num_faces} ({frac:.1%})")
     assert 0.4 < frac < 0.6
@@ -279,6 +279,35 @@ def test_cull_keeps_front_removes_back():
                    f, f, 100.0, 75.0, 200, 150)
     with pytest.raises(BadInputError, match="no training camera sees"):
         cull_unseen_faces(mesh, away)
+
+
+def test_cull_margin_keeps_what_nearby_cameras_see():
+    """Cameras on the equator of a sphere: with the default margin, a held-out camera 14 degrees below them
+    sees no culled face; without a margin it looks into the culled bottom."""
+    from neuras_distill.geometry.visibility import seen_faces
+
+    mesh = decimate(marching_cubes_field(SphereSDF(), 48), 4000)
+    up = torch.tensor([0.0, 0.0, 1.0])
+    ring = [torch.tensor([5.0 * math.cos(a), 5.0 * math.sin(a), 0.0]) for a in np.linspace(0, 2 * math.pi, 12,
+                                                                                            endpoint=False)]
+    f = 0.5 * 200 / math.tan(math.radians(15))
+    train = Cameras(torch.stack([look_at(e, torch.zeros(3), up) for e in ring]).float(), f, f, 100.0, 75.0, 200, 150)
+    low = math.radians(-14)
+    eye = torch.tensor([5.0 * math.cos(low), 0.0, 5.0 * math.sin(low)])
+    held_out = Cameras(look_at(eye, torch.zeros(3), up).float()[None], f, f, 100.0, 75.0, 200, 150)
+    tight = cull_unseen_faces(mesh, train, margin_deg=0)
+    kept = cull_unseen_faces(mesh, train)
+    assert kept.stats["cull_margin_deg"] == 15.0 and kept.stats["cull_seen_nearby"] > 0
+    assert kept.stats["culled_faces"] < tight.stats["culled_faces"]
+
+    def missed_by(out):              # held-out faces (of the full mesh) whose centroid is not in ``out``
+        seen = seen_faces(mesh, held_out)[0]
+        kept_c = {tuple(np.round(c, 5)) for c in out.vertices[out.faces].mean(axis=1)}
+        cents = mesh.vertices[mesh.faces[seen]].mean(axis=1)
+        return sum(tuple(np.round(c, 5)) not in kept_c for c in cents)
+
+    assert missed_by(tight) > 3
+    assert missed_by(kept) == 0
 
 
 # ---------------------------------------------------------------------------------------------- unwrap

@@ -12,7 +12,9 @@ Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward 
 - the MLP unrolled as ``mat4 * vec4`` blocks with the weights as float literals (9 significant digits, so every
   literal is exactly the float32 weight); all-zero blocks are skipped; ReLU = max(x, 0), sigmoid = 1/(1+exp(-x));
 - the view direction ``normalize(v_world - u_cam_pos)`` only when the model uses it (otherwise the shader
-  declares no ``u_cam_pos`` at all).
+  declares no ``u_cam_pos`` at all), in a vec4 whose w is the facing cosine ``|n . d|`` when the model uses
+  it (``MLPShader.use_facing``; n from ``cross(dFdx(v_world), dFdy(v_world))``: within one triangle the
+  interpolated position is affine, so this is the face's own normal, the one torch takes from the face id).
 
 Unrolled mat4/vec4 arithmetic compiles in well under a second on Mesa llvmpipe and vectorises there.
 """
@@ -111,15 +113,17 @@ def generate_fragment_shader(model) -> str:
     tex_w, tex_h, dim = int(model.tex_width), int(model.tex_height), int(model.feature_dim)
     c4 = (dim + 3) // 4
     use_dir = bool(model.shader.use_viewdir)
+    use_facing = bool(getattr(model.shader, "use_facing", False))
     layers = model.shader.weights()
 
     out: list[str] = [
         "#version 400 core",
         f"// NeuRas neural texture shader: {tex_w}x{tex_h} atlas, D={dim}, MLP "
-        + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3" + (", view-dependent" if use_dir else ""),
+        + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3" + (", view-dependent" if use_dir else "")
+        + (", facing" if use_facing else ""),
         "in vec2 v_uv;",
     ]
-    if use_dir:
+    if use_dir or use_facing:
         out += ["in vec3 v_world;", "uniform vec3 u_cam_pos;"]
     out += [
         "uniform usampler2D u_index;",
@@ -129,7 +133,13 @@ def generate_fragment_shader(model) -> str:
         "void main() {",
     ]
     in_names = bilinear_feature_lines(out, "v_uv", tex_w, tex_h, "u_index", "u_codebook", c4, "a0", "    ")
-    if use_dir:
+    if use_facing:
+        out += ["    vec3 dir = normalize(v_world - u_cam_pos);",
+                "    vec3 nrm = normalize(cross(dFdx(v_world), dFdy(v_world)));",
+                "    float facing = abs(dot(nrm, dir));",
+                "    vec4 a0_d = " + ("vec4(dir, facing);" if use_dir else "vec4(facing, 0.0, 0.0, 0.0);")]
+        in_names.append("a0_d")
+    elif use_dir:
         out.append("    vec4 a0_d = vec4(normalize(v_world - u_cam_pos), 0.0);")
         in_names.append("a0_d")
 
@@ -137,8 +147,8 @@ def generate_fragment_shader(model) -> str:
     w0, _ = layers[0]
     cols = np.zeros((w0.shape[0], 4 * len(in_names)), np.float32)
     cols[:, :dim] = w0[:, :dim]
-    if use_dir:
-        cols[:, 4 * c4:4 * c4 + 3] = w0[:, dim:dim + 3]
+    view_dim = (3 if use_dir else 0) + (1 if use_facing else 0)
+    cols[:, 4 * c4:4 * c4 + view_dim] = w0[:, dim:dim + view_dim]
     for n, (w, b) in enumerate(layers):
         if n == 0:
             w = cols

@@ -13,13 +13,13 @@ from .cleanup import clean_mesh, decimate, smooth_rough
 from .marching import marching_cubes_field
 from .mesh import MeshData
 from .unwrap import unwrap
-from .visibility import cull_unseen_faces
+from .visibility import cull_unseen_faces, missed_opaque_fraction
 
 
 def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
                  texture_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                  density_level: float | None = None, max_unwrap_faces: int = 200_000,
-                 choose_resolution=None) -> MeshData:
+                 choose_resolution=None, cull_margin_deg: float = 15.0, field_opacity=None) -> MeshData:
     """Extract, simplify, cull and unwrap the surface of ``field``.
 
     Args:
@@ -30,6 +30,10 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
         texture_resolution: side of the square atlas the distiller uses (uv layout and padding target it).
         unwrap_timeout_s: time limit per xatlas attempt.
         density_level: iso-level override for density fields.
+        cull_margin_deg: culling keeps what cameras turned by this angle around the training cameras' look-at
+            points see (``visibility.cull_unseen_faces``).
+        field_opacity: optional (N, H, W) opacity of the field in ``train_cameras``: the iso-level then moves
+            outwards until the mesh encloses the field's soft fringe (``marching.marching_cubes_field``).
         choose_resolution: optional callable (unwrapped MeshData) -> atlas side; the mesh is first unwrapped
             at ``texture_resolution``, then again at the chosen side when it differs (the padding is laid out
             in texels of the final atlas). ``stats['uv_resolution']`` holds the side used.
@@ -46,7 +50,11 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
     timings = {}
 
     t = time.perf_counter()
-    mesh = marching_cubes_field(field, grid_resolution, level=density_level)
+    fringe_check = None
+    if field_opacity is not None:
+        def fringe_check(candidate: MeshData) -> float:
+            return missed_opaque_fraction(candidate, train_cameras, field_opacity)
+    mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check)
     timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling
     n_mc = mesh.num_faces
 
@@ -63,7 +71,7 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
     culled = 0
     if cull_unseen:
         t = time.perf_counter()
-        mesh = cull_unseen_faces(mesh, train_cameras)
+        mesh = cull_unseen_faces(mesh, train_cameras, margin_deg=cull_margin_deg)
         timings["cull"] = time.perf_counter() - t
         culled = int(mesh.stats.get("culled_faces", 0))
 

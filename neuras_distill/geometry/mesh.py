@@ -39,6 +39,14 @@ class MeshData:
     def num_vertices(self) -> int:
         return int(self.vertices.shape[0])
 
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) float32 unit face normals (right-handed winding: outwards for CCW-from-outside faces; zero
+        for degenerate faces), computed in float64 from the vertices."""
+        tri = self.vertices[self.faces].astype(np.float64)
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0).astype(np.float32)
+
     def __repr__(self) -> str:
         uv = "none" if self.uvs is None else f"{self.uvs.shape} {self.uvs.dtype}"
         return (f"MeshData(vertices={self.vertices.shape} {self.vertices.dtype}, "

@@ -1,4 +1,5 @@
-"""Visibility culling: drop faces that no training camera sees (the only open3d importer in geometry/).
+"""Visibility culling: drop faces that no camera near the training set sees (the only open3d importer in
+geometry/).
 
 The pixel-centre rays of every camera (``Cameras.rays`` at a subsampled resolution, at most
 ``max_rays_per_camera`` rays, same field of view) are cast against the mesh with open3d's
@@ -6,6 +7,16 @@ The pixel-centre rays of every camera (``Cameras.rays`` at a subsampled resoluti
 small or grazing faces near silhouettes can be missed; ``dilate=True`` (default) also keeps the one-ring
 neighbours (faces sharing a vertex) of every seen face so no cracks open at silhouettes. Unreferenced vertices
 are then dropped.
+
+Culling is conservative (``margin_deg``, default 15 degrees): faces seen by *cameras near the training set*
+are kept too, not only faces the training cameras see. A held-out or user camera slightly outside the
+training range (lower on an orbit, a lane to the side) otherwise looked into jagged holes: on the
+gradient-ball scene, whose held-out views sit a few degrees below their training neighbours, the bottom of
+the ball was culled and the held-out views showed the background there. Each training camera gets four
+neighbours turned by +-``margin_deg`` about its own up and right axes around the point it looks at (the
+median first-hit distance along its rays), which is what an orbit, a nearby viewpoint or a lane change
+sees. Faces only the neighbours see get texels but no training samples; the model fills their texels from
+the nearest trained texel (``NeuralTextureModel.fill_unseen_texels``).
 """
 
 from __future__ import annotations
@@ -15,43 +26,129 @@ import time
 
 import numpy as np
 import open3d as o3d
+import torch
 
 from ..errors import BadInputError
 from .mesh import MeshData
 
 
-def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536) -> tuple[np.ndarray, int]:
-    """(F,) bool mask of faces hit first by at least one subsampled pixel ray, and the number of rays cast."""
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)))
+def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536,
+               scene=None) -> tuple[np.ndarray, int, np.ndarray]:
+    """(F,) bool mask of faces hit first by at least one subsampled pixel ray, the number of rays cast, and
+    (N,) float64 median first-hit distance per camera (inf for a camera whose rays hit nothing)."""
+    scene = scene or _raycasting_scene(mesh)
     w, h = cameras.width, cameras.height
     scale = min(1.0, math.sqrt(max(1, int(max_rays_per_camera)) / float(w * h)))
     if scale < 1.0:
         cameras = cameras.resized(max(1, int(w * scale)), max(1, int(h * scale)))
     invalid = o3d.t.geometry.RaycastingScene.INVALID_ID
     seen = np.zeros(mesh.num_faces, dtype=bool)
+    distances = np.full(len(cameras), np.inf)
     total = 0
     for i in range(len(cameras)):
         o, d = cameras.rays(i)
         rays = np.concatenate([o.reshape(-1, 3).numpy(), d.reshape(-1, 3).numpy()], axis=1).astype(np.float32)
         total += rays.shape[0]
-        ids = scene.cast_rays(o3d.core.Tensor(rays))["primitive_ids"].numpy().reshape(-1)
-        ids = ids[ids != invalid]
-        seen[ids.astype(np.int64)] = True
-    return seen, total
+        hits = scene.cast_rays(o3d.core.Tensor(rays))
+        ids = hits["primitive_ids"].numpy().reshape(-1)
+        hit = ids != invalid
+        seen[ids[hit].astype(np.int64)] = True
+        if hit.any():
+            distances[i] = float(np.median(hits["t_hit"].numpy().reshape(-1)[hit]))
+    return seen, total, distances
 
 
-def cull_unseen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, dilate: bool = True) -> MeshData:
-    """Remove faces no camera sees.
+def missed_opaque_fraction(mesh: MeshData, cameras, opacity: np.ndarray, *, threshold: float = 0.05,
+                           stride: int = 4, reach: int = 6) -> float:
+    """Fraction of the field's fringe pixels whose ray misses ``mesh``.
+
+    Fringe pixels: pixels where the field is at least ``threshold`` opaque and that lie within ``reach``
+    strided pixels of a pixel the mesh covers (what surrounds the mesh's silhouette; isolated floaters farther
+    out are not the fringe, and chasing them would grow the mesh into the floaters' fog).
+
+    Args:
+        mesh: vertices (V, 3), faces (F, 3) in the cameras' world frame.
+        cameras: ``Cameras`` (N views, W x H).
+        opacity: (N, H, W) the field's opacity of those views (the teacher's accumulated alpha).
+        stride: only every ``stride``-th pixel row and column is cast (pixel-centre rays, as rendered).
+    Returns:
+        missed / fringe pixels over the strided pixels (0.0 when there are none).
+    """
+    from scipy import ndimage
+
+    scene = _raycasting_scene(mesh)
+    invalid = o3d.t.geometry.RaycastingScene.INVALID_ID
+    missed = wanted = 0
+    for i in range(len(cameras)):
+        want = np.asarray(opacity[i])[::stride, ::stride] >= threshold
+        if not want.any():
+            continue
+        o, d = cameras.rays(i)
+        o, d = o[::stride, ::stride], d[::stride, ::stride]
+        rays = np.concatenate([o.reshape(-1, 3).numpy(), d.reshape(-1, 3).numpy()], axis=1).astype(np.float32)
+        hit = (scene.cast_rays(o3d.core.Tensor(rays))["primitive_ids"].numpy() != invalid).reshape(want.shape)
+        want &= ndimage.binary_dilation(hit, iterations=reach) if hit.any() else False
+        missed += int((want & ~hit).sum())
+        wanted += int(want.sum())
+    return missed / wanted if wanted else 0.0
+
+
+def _raycasting_scene(mesh: MeshData):
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
+                        o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)))
+    return scene
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """(3, 3) float64 rotation by ``angle`` radians about the unit ``axis`` (Rodrigues)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+
+
+def neighbour_cameras(cameras, distances: np.ndarray, margin_deg: float):
+    """Cameras near the given ones: each turned by +-``margin_deg`` about its own up and right axes around
+    its look-at point (``distances[i]`` along its optical axis). Cameras with an infinite distance (seeing
+    nothing) get no neighbours. Returns a ``Cameras`` (4 per usable camera, same intrinsics) or None."""
+    from ..render.cameras import Cameras
+
+    poses, keep = [], []
+    angle = np.radians(float(margin_deg))
+    for i in range(len(cameras)):
+        if not np.isfinite(distances[i]):
+            continue
+        c2w = cameras.c2w[i].double().numpy()
+        rot, eye = c2w[:3, :3], c2w[:3, 3]
+        target = eye - float(distances[i]) * rot[:, 2]            # -z is forward
+        for axis in (rot[:, 1], rot[:, 0]):
+            for sign in (1.0, -1.0):
+                r = _rotation(axis, sign * angle)
+                pose = np.eye(4)
+                pose[:3, :3], pose[:3, 3] = r @ rot, target + r @ (eye - target)
+                poses.append(pose)
+                keep.append(i)
+    if not poses:
+        return None
+    k = torch.as_tensor(keep)
+    return Cameras(torch.as_tensor(np.stack(poses)).float(), cameras.fx[k], cameras.fy[k], cameras.cx[k],
+                   cameras.cy[k], cameras.width, cameras.height)
+
+
+def cull_unseen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, dilate: bool = True,
+                      margin_deg: float = 15.0) -> MeshData:
+    """Remove faces no camera near the training cameras sees.
 
     Args:
         mesh: vertices (V, 3), faces (F, 3) in world units (uvs, if any, are carried along).
         cameras: ``Cameras`` (N views); their pixel rays are subsampled to about ``max_rays_per_camera`` each.
         dilate: also keep faces sharing a vertex with a seen face.
+        margin_deg: also keep faces seen by each camera turned by this angle about its look-at point
+            (:func:`neighbour_cameras`); 0 keeps only what the cameras themselves see.
 
     Returns:
-        MeshData with stats ``cull_faces_in``, ``cull_seen``, ``culled_faces``, ``cull_rays``, ``cull_seconds``.
+        MeshData with stats ``cull_faces_in``, ``cull_seen`` (seen by the cameras), ``cull_seen_nearby``
+        (seen only by their neighbours), ``culled_faces``, ``cull_rays``, ``cull_margin_deg``,
+        ``cull_seconds``.
 
     Raises:
         BadInputError: the mesh is empty or no camera sees any face.
@@ -59,26 +156,35 @@ def cull_unseen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 655
     if mesh.num_faces == 0:
         raise BadInputError("cannot cull an empty mesh (no faces)")
     t0 = time.perf_counter()
-    seen, rays = seen_faces(mesh, cameras, max_rays_per_camera=max_rays_per_camera)
+    scene = _raycasting_scene(mesh)
+    seen, rays, distances = seen_faces(mesh, cameras, max_rays_per_camera=max_rays_per_camera, scene=scene)
     n_seen = int(seen.sum())
     if n_seen == 0:
         raise BadInputError(f"no training camera sees the extracted geometry ({len(cameras)} cameras, {rays} rays, "
                             f"{mesh.num_faces} faces): check that the cameras look at the field's box and use the "
                             "same world frame as the field")
-    keep = seen
+    nearby = np.zeros_like(seen)
+    neighbours = neighbour_cameras(cameras, distances, margin_deg) if margin_deg > 0 else None
+    if neighbours is not None:
+        nearby, more_rays, _ = seen_faces(mesh, neighbours, max_rays_per_camera=max_rays_per_camera // 4,
+                                          scene=scene)
+        rays += more_rays
+        nearby &= ~seen
+    keep = seen | nearby
     if dilate:
         vert_seen = np.zeros(mesh.num_vertices, dtype=bool)
-        vert_seen[mesh.faces[seen].reshape(-1)] = True
+        vert_seen[mesh.faces[keep].reshape(-1)] = True
         keep = vert_seen[mesh.faces].any(axis=1)
     faces = mesh.faces[keep]
     used = np.zeros(mesh.num_vertices, dtype=bool)
     used[faces.reshape(-1)] = True
     remap = (np.cumsum(used) - 1).astype(np.int64)
     stats = dict(mesh.stats)
-    stats.update(cull_faces_in=mesh.num_faces, cull_seen=n_seen, culled_faces=int((~keep).sum()), cull_rays=rays,
+    stats.update(cull_faces_in=mesh.num_faces, cull_seen=n_seen, cull_seen_nearby=int(nearby.sum()),
+                 culled_faces=int((~keep).sum()), cull_rays=rays, cull_margin_deg=float(margin_deg),
                  cull_seconds=time.perf_counter() - t0)
     uvs = None if mesh.uvs is None else mesh.uvs[used]
     return MeshData(mesh.vertices[used], remap[faces], uvs, stats)
 
 
-__all__ = ["cull_unseen_faces", "seen_faces"]
+__all__ = ["cull_unseen_faces", "missed_opaque_fraction", "neighbour_cameras", "seen_faces"]

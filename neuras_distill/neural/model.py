@@ -26,6 +26,26 @@ from neuras_distill.neural.vq import VectorQuantizer
 from neuras_distill.errors import BadInputError
 
 
+def view_inputs(dirs, face_id, face_normals, use_facing: bool) -> np.ndarray:
+    """The MLP's view input per pixel: (..., 3) unit directions, or with ``use_facing`` (..., 4) with
+    ``|n . d|`` appended (n: the normal of the pixel's face; 0 where no face covers the pixel).
+
+    Args:
+        dirs: (..., 3) float32 unit view directions (camera to surface).
+        face_id: (...) int face index per pixel (-1: uncovered), as in ``GBuffer.face_id``.
+        face_normals: (F, 3) unit face normals (``MeshData.face_normals()``), in the frame of ``dirs``.
+    """
+    dirs = np.asarray(dirs, dtype=np.float32)
+    if not use_facing:
+        return dirs
+    face_id = np.asarray(face_id)
+    facing = np.zeros(face_id.shape, np.float32)
+    covered = face_id >= 0
+    facing[covered] = np.abs(np.einsum("ij,ij->i", np.asarray(face_normals, np.float32)[face_id[covered]],
+                                       dirs[covered]))
+    return np.concatenate([dirs, facing[..., None]], axis=-1)
+
+
 class NeuralTextureModel(nn.Module):
     """(uv, view direction) -> rgb.
 
@@ -35,20 +55,22 @@ class NeuralTextureModel(nn.Module):
         num_codes: K codes of the codebook (used only when use_vq).
         hidden, num_layers: MLP shader size (num_layers Linear layers).
         use_viewdir: feed the view direction to the MLP.
+        use_facing: also feed |n . d| (``MLPShader``); then ``dirs`` carry 4 columns (direction, facing).
         use_vq: quantize features (required to bake atlases with more than 65535 texels).
         sparse_grad: texture gradients as sparse tensors (train the texture with SparseAdam).
     """
 
     def __init__(self, tex_height: int, tex_width: int, feature_dim: int = 8, num_codes: int = 1024,
                  hidden: int = 32, num_layers: int = 3, use_viewdir: bool = True, use_vq: bool = True,
-                 sparse_grad: bool = True, dead_after: int = 100) -> None:
+                 sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False) -> None:
         super().__init__()
         self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
         self.hidden, self.num_layers = int(hidden), int(num_layers)
         self.use_viewdir, self.use_vq, self.sparse_grad = bool(use_viewdir), bool(use_vq), bool(sparse_grad)
         self.texture = NeuralTexture(self.tex_height, self.tex_width, self.feature_dim)
         self.vq = VectorQuantizer(num_codes, self.feature_dim, dead_after=dead_after) if self.use_vq else None
-        self.shader = MLPShader(self.feature_dim, hidden=hidden, num_layers=num_layers, use_viewdir=use_viewdir)
+        self.shader = MLPShader(self.feature_dim, hidden=hidden, num_layers=num_layers, use_viewdir=use_viewdir,
+                                use_facing=use_facing)
         self.register_buffer("vq_active", torch.tensor(False))
         self.register_buffer("touched", torch.zeros(self.tex_height * self.tex_width, dtype=torch.bool),
                              persistent=False)
@@ -100,7 +122,8 @@ class NeuralTextureModel(nn.Module):
         return f, aux
 
     def forward(self, uv: torch.Tensor, dirs: torch.Tensor | None = None) -> tuple[torch.Tensor, dict]:
-        """uv (B, 2), dirs (B, 3) unit view directions -> rgb (B, 3) in (0, 1), aux {"vq_loss", "indices"}."""
+        """uv (B, 2), dirs (B, 3) unit view directions ((B, 4) with the facing cosine) -> rgb (B, 3) in (0, 1),
+        aux {"vq_loss", "indices"}."""
         f, aux = self.features(uv)
         return self.shader(f, dirs), aux
 
@@ -179,7 +202,8 @@ class NeuralTextureModel(nn.Module):
         """Torch reference render of one G-buffer (for parity tests and evaluation).
 
         Args:
-            uv: (H, W, 2) float32; coverage: (H, W) bool; dirs: (H, W, 3) unit view directions;
+            uv: (H, W, 2) float32; coverage: (H, W) bool; dirs: (H, W, 3) unit view directions ((H, W, 4) with
+            the facing cosine, see :func:`view_inputs`);
             background: (3,) colour of uncovered pixels. numpy arrays or tensors.
         Returns:
             (H, W, 3) float32 numpy image.
@@ -194,7 +218,7 @@ class NeuralTextureModel(nn.Module):
             out = torch.empty(h * w, 3)
             out[:] = torch.as_tensor(np.asarray(background, dtype=np.float32)).view(1, 3)
             sel = torch.nonzero(cov.reshape(-1)).flatten()
-            uv_f, d_f = uv_t.reshape(-1, 2), d_t.reshape(-1, 3)
+            uv_f, d_f = uv_t.reshape(-1, 2), d_t.reshape(-1, d_t.shape[-1])
             for s in range(0, sel.numel(), chunk):
                 ids = sel[s:s + chunk]
                 rgb, _ = self(uv_f[ids], d_f[ids])

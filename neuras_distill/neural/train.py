@@ -95,7 +95,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
 
     Args:
         uv: (N, H, W, 2) float32 G-buffer texture coordinates; coverage: (N, H, W) bool;
-        dirs: (N, H, W, 3) float32 unit view directions; targets: (N, H, W, 3) float32 teacher colours.
+        dirs: (N, H, W, 3) float32 unit view directions ((N, H, W, 4) with the facing cosine when the model's
+            shader uses it, ``model.view_inputs``); targets: (N, H, W, 3) float32 teacher colours.
         steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
         lr: MLP and codebook learning rate; texture_lr: texture learning rate (default 3 * lr).
         batch_patches, patch: patches per step and their side in pixels.
@@ -114,7 +115,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     cov = _as_tensor(coverage, torch.bool, "coverage", ())
     lead = tuple(cov.shape)
     uv_t = _as_tensor(uv, torch.float32, "uv", (2,), lead)
-    dirs_t = _as_tensor(dirs, torch.float32, "dirs", (3,), lead)
+    dirs_t = _as_tensor(dirs, torch.float32, "dirs", (4,) if model.shader.use_facing else (3,), lead)
     tgt_t = _as_tensor(targets, torch.float32, "targets", (3,), lead)
     n, h, w = lead
     cov_f = cov.reshape(-1)
@@ -128,7 +129,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         if origins_t.shape[0] != lead[0]:
             raise BadInputError(f"fit: origins has {origins_t.shape[0]} rows for {lead[0]} views")
         covered = torch.arange(cov_f.numel())            # patches anywhere: the sky is trained too
-    uv_f, dirs_f, tgt_f = uv_t.reshape(-1, 2), dirs_t.reshape(-1, 3), tgt_t.reshape(-1, 3)
+    uv_f, dirs_f, tgt_f = uv_t.reshape(-1, 2), dirs_t.reshape(-1, dirs_t.shape[-1]), tgt_t.reshape(-1, 3)
 
     p = int(max(1, min(patch, h, w)))
     gen = torch.Generator().manual_seed(seed)
@@ -251,6 +252,15 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         skybox.atlas.fill_unseen_texels()
         skybox.eval()
     return log
+
+
+def uv_area_fraction(uvs: np.ndarray, faces: np.ndarray) -> float:
+    """Fraction of the unit uv square the faces cover (sum of |uv triangle areas|): times the atlas's texel
+    count, the number of texels training has to fill."""
+    t = np.asarray(uvs, np.float64)[np.asarray(faces)]
+    area = 0.5 * np.abs((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1])
+                        - (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0]))
+    return float(min(1.0, area.sum()))
 
 
 @torch.no_grad()

@@ -134,3 +134,71 @@ def training_budget_resolution(samples: int, uv_area: float, *, per_texel: int =
     ``samples`` training pixels, rounded up to ``multiple``, at least ``lo``."""
     exact = float(np.sqrt(max(samples, 1) / (per_texel * max(uv_area, 1e-9))))
     return int(max(lo, multiple * np.ceil(exact / multiple)))
+
+
+#: Share of the rest of the run (teacher renders and held-out evaluation, both volume rendering) that training
+#: may take. Training used 17 s of a 13-minute from-ngp run before (evaluation took 505 s) while its atlas
+#: was capped for lack of training samples.
+TRAIN_TIME_FRACTION = 0.5
+#: Fewest optimisation steps of an automatic plan (the MLP needs some steps whatever the atlas size).
+MIN_TRAIN_STEPS = 1000
+#: Training samples per used texel an automatic plan aims for within its time budget (``SAMPLES_PER_TEXEL``
+#: is the least the atlas size allows). More kept paying off: on the instant-nsr-pl fixture at 384^2,
+#: 1500 / 3000 / 5000 steps (about 330 / 660 / 1100 samples per used texel) gave ~29 / 30.1 / 30.7 dB.
+TARGET_SAMPLES_PER_TEXEL = 1024
+
+
+def training_time_budget(teacher_seconds: float, teacher_pixels: int, eval_pixels: int,
+                         fraction: float = TRAIN_TIME_FRACTION, floor_s: float = 20.0) -> float:
+    """Seconds training may take: ``fraction`` of the volume rendering the run does anyway, the teacher's
+    (measured) plus the held-out evaluation's (estimated from the teacher's seconds per pixel; ``eval_pixels``
+    counts every field pixel the evaluation renders), and at least ``floor_s``."""
+    per_pixel = teacher_seconds / max(teacher_pixels, 1)
+    return float(max(floor_s, fraction * (teacher_seconds + per_pixel * eval_pixels)))
+
+
+def probe_training_speed(feature_dim: int, num_codes: int, hidden: int, num_layers: int, batch_patches: int,
+                         patch: int, steps: int = 40, side: int = 256) -> float:
+    """Optimisation steps per second of ``neural.train.fit`` on this machine for this model size, measured on a
+    small synthetic problem (random uvs; a step's cost does not depend on the data)."""
+    from ..neural.model import NeuralTextureModel
+    from ..neural.train import fit
+
+    gen = torch.Generator().manual_seed(0)
+    n, h, w = 2, 4 * patch, 4 * patch
+    model = NeuralTextureModel(side, side, feature_dim=feature_dim, num_codes=num_codes, hidden=hidden,
+                               num_layers=num_layers)
+    uv = torch.rand(n, h, w, 2, generator=gen)
+    dirs = torch.nn.functional.normalize(torch.randn(n, h, w, 3, generator=gen), dim=-1)
+    log = fit(model, uv, torch.ones(n, h, w, dtype=torch.bool), dirs, torch.rand(n, h, w, 3, generator=gen),
+              steps=steps, batch_patches=batch_patches, patch=patch, progress=False)
+    return float(log.steps_per_second)
+
+
+def training_steps(used_texels: float, samples_per_step: int, affordable_steps: int,
+                   per_texel: int = TARGET_SAMPLES_PER_TEXEL, min_steps: int = MIN_TRAIN_STEPS) -> tuple[int, int]:
+    """(steps, needed): the steps that give every used texel ``per_texel`` training samples (``needed``),
+    limited to ``affordable_steps`` and at least ``min_steps``."""
+    needed = int(np.ceil(used_texels * per_texel / max(samples_per_step, 1)))
+    return int(max(min_steps, min(needed, affordable_steps))), needed
+
+
+#: Fringe width (training-view pixels) from which the mesh encloses the field's soft fringe. Measured with the
+#: same inputs and 1500 steps: the gradient ball (fringe ~10 px at 640 wide) went from 29.9 to 34.8 dB
+#: held-out (silhouette band 17.0 -> 25.0 dB); the demo bunny (a NeuS fringe about a pixel wide) went from
+#: 33.9 to 30.6 dB: half a voxel of offset showed surface colour where the field shows background.
+FRINGE_MIN_PIXELS = 3.0
+
+
+def fringe_width_pixels(opacity: np.ndarray, lo: float = 0.05, hi: float = 0.95) -> float:
+    """Mean width in pixels of the field's partly opaque fringe: pixels with ``lo < opacity < hi`` per pixel
+    of silhouette (boundary pixels of ``opacity > 0.5``), over (N, H, W) opacities."""
+    from scipy import ndimage
+
+    op = np.asarray(opacity)
+    solid = op > 0.5
+    boundary = 0
+    for view in solid:
+        boundary += int((view & ~ndimage.binary_erosion(view)).sum())
+    partial = int(((op > lo) & (op < hi)).sum())
+    return partial / boundary if boundary else 0.0

@@ -2,6 +2,11 @@
 
 Times both sides on this machine ("before" = volume rendering the field, "after" = OpenGL playback of the
 bundle), computes PSNR/SSIM of the bundle against the field, and the error-against-run-time points.
+
+Fidelity beyond one PSNR (``fidelity``): FLIP per view, PSNR over the silhouette band and over the interior,
+and the fraction of pixels where the field is opaque but the bundle's mesh covers nothing (regions defined in
+``metrics``: they come from the field's own opacity of each view). For every view it also picks two crop
+windows at native resolution: the silhouette-band and the interior area with the highest FLIP.
 """
 
 from __future__ import annotations
@@ -9,6 +14,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy.ndimage import uniform_filter
 
 from .. import metrics
 from ..render.cameras import Cameras
@@ -16,14 +22,24 @@ from ..render.cameras import Cameras
 
 def render_field_timed(renderer, cameras: Cameras, progress=None) -> tuple[list[np.ndarray], list[float]]:
     """Volume-render every camera; returns images (H,W,3) and seconds per frame."""
-    images, seconds = [], []
+    images, _, seconds = render_field_views(renderer, cameras, progress)
+    return images, seconds
+
+
+def render_field_views(renderer, cameras: Cameras,
+                       progress=None) -> tuple[list[np.ndarray], list[np.ndarray], list[float]]:
+    """Volume-render every camera; returns images (H,W,3), the field's opacities (H,W) and seconds per
+    frame."""
+    images, opacities, seconds = [], [], []
     for i in range(len(cameras)):
         t0 = time.perf_counter()
-        images.append(renderer.render(cameras, i)["rgb"])
+        out = renderer.render(cameras, i)
         seconds.append(time.perf_counter() - t0)
+        images.append(out["rgb"])
+        opacities.append(out["opacity"])
         if progress is not None:
             progress(i + 1, len(cameras))
-    return images, seconds
+    return images, opacities, seconds
 
 
 def compare(bundle_images: list[np.ndarray], field_images: list[np.ndarray]) -> dict:
@@ -64,8 +80,11 @@ def gl_torch_parity(model, mesh, cameras: Cameras, gl_image: np.ndarray, backgro
     compared with its torch forward pass on the rays of ``world_cameras`` (camera 0)."""
     import torch
 
+    from ..neural.model import view_inputs
+
     gbuffer = rasterize(mesh, cameras[0])
-    dirs = cameras.rays(0)[1].numpy()
+    dirs = view_inputs(cameras.rays(0)[1].numpy(), gbuffer.face_id[0], mesh.face_normals(),
+                       bool(getattr(model.shader, "use_facing", False)))
     reference = model.render_gbuffer(gbuffer.uv[0], gbuffer.coverage[0], dirs, background)
     if skybox is not None:
         origins, world_dirs = world_cameras.rays(0)
@@ -77,10 +96,104 @@ def gl_torch_parity(model, mesh, cameras: Cameras, gl_image: np.ndarray, backgro
     return metrics.psnr(gl_image, reference)
 
 
-def side_by_side(field_image: np.ndarray, bundle_image: np.ndarray, full_scale: float = 0.1) -> np.ndarray:
-    """(H, 3W + 2*gap, 3) uint8: field | bundle | error heat map."""
+def bundle_coverage(rasterize, cameras: Cameras) -> list[np.ndarray]:
+    """(H, W) bool per camera: where the bundle's mesh covers the pixel. ``rasterize(cameras) -> GBuffer`` is
+    called one camera at a time (memory stays at one G-buffer)."""
+    return [np.asarray(rasterize(cameras[i]).coverage[0], dtype=bool) for i in range(len(cameras))]
+
+
+def worst_window(error_map: np.ndarray, region: np.ndarray, size: int = 256, box: int = 32,
+                 min_share: float = 0.05) -> list[int] | None:
+    """[x0, y0, w, h] of a ``size`` x ``size`` window (clamped into the (H, W) image; smaller images give the
+    whole side) centred on the ``region`` pixel whose ``box`` x ``box`` neighbourhood has the highest mean
+    error over its region pixels, among those whose neighbourhood is at least ``min_share`` region (all region
+    pixels if none is). None for an empty region. ``error_map`` (H, W) float, ``region`` (H, W) bool."""
+    err = np.asarray(error_map, dtype=np.float64)
+    region = np.asarray(region, dtype=bool) & np.isfinite(err)
+    if not region.any():
+        return None
+    h, w = err.shape
+    k = max(1, min(box, h, w))
+    den = uniform_filter(region.astype(np.float64), k, mode="constant")
+    score = uniform_filter(np.where(region, err, 0.0), k, mode="constant") / np.maximum(den, 1e-12)
+    ok = region & (den >= min_share)
+    cy, cx = np.unravel_index(np.argmax(np.where(ok if ok.any() else region, score, -np.inf)), err.shape)
+    cw, ch = min(size, w), min(size, h)
+    x0 = int(np.clip(cx - cw // 2, 0, w - cw))
+    y0 = int(np.clip(cy - ch // 2, 0, h - ch))
+    return [x0, y0, cw, ch]
+
+
+def view_fidelity(bundle_image: np.ndarray, field_image: np.ndarray, opacity: np.ndarray,
+                  coverage: np.ndarray, band: int | None = None) -> tuple[dict, np.ndarray]:
+    """Fidelity of one view: (H,W,3) bundle and field images, the field's (H,W) opacity and the bundle's (H,W)
+    bool coverage. Returns ({"flip", "psnr_interior", "psnr_silhouette", "hole_fraction", "crops"}, (H,W)
+    float32 FLIP map). Region PSNRs are None for an empty region; "crops" holds the windows
+    ``worst_window`` picks on the band ("a") and the interior ("b"), {"region", "box", "flip": the mean FLIP
+    of the region's pixels in the window}; a view without pixels of a region has no crop for it."""
+    mean_flip, flip_map = metrics.flip(bundle_image, field_image)
+    band_mask = metrics.silhouette_band(opacity, band)
+    interior = metrics.interior_mask(opacity, band_mask)
+    crops = {}
+    for key, name, region in (("a", "silhouette band", band_mask), ("b", "interior", interior)):
+        box = worst_window(flip_map, region)
+        if box is not None:
+            x0, y0, cw, ch = box
+            window = (slice(y0, y0 + ch), slice(x0, x0 + cw))
+            crops[key] = {"region": name, "box": box, "flip": float(flip_map[window][region[window]].mean())}
+    return {"flip": mean_flip,
+            "psnr_interior": metrics.region_psnr(bundle_image, field_image, interior),
+            "psnr_silhouette": metrics.region_psnr(bundle_image, field_image, band_mask),
+            "hole_fraction": metrics.hole_fraction(opacity, coverage),
+            "crops": crops}, flip_map
+
+
+def _mean(values: list) -> float | None:
+    """Mean of the values that are not None (NaN stays NaN); None when there are none."""
+    kept = [v for v in values if v is not None]
+    return float(np.mean(kept)) if kept else None
+
+
+def fidelity(bundle_images: list[np.ndarray], field_images: list[np.ndarray], opacities: list[np.ndarray],
+             coverages: list[np.ndarray], band: int | None = None) -> tuple[dict, list[np.ndarray]]:
+    """``view_fidelity`` of every view, and means over views (means of per-view values; region PSNRs over the
+    views where the region is not empty). Returns (report entries: flip, psnr_interior, psnr_silhouette,
+    hole_fraction, each with a ``_per_view`` list, silhouette_band_px, crops), [(H,W) float32 FLIP map]."""
+    per_view, maps = [], []
+    for b, f, op, cov in zip(bundle_images, field_images, opacities, coverages):
+        entry, flip_map = view_fidelity(b, f, op, cov, band)
+        per_view.append(entry)
+        maps.append(flip_map)
+    out: dict = {}
+    for key in ("flip", "psnr_interior", "psnr_silhouette", "hole_fraction"):
+        values = [v[key] for v in per_view]
+        out[key] = _mean(values)
+        out[f"{key}_per_view"] = values
+    h, w = field_images[0].shape[:2] if field_images else (0, 0)
+    out["silhouette_band_px"] = metrics.band_width(h, w) if band is None else int(band)
+    out["crops"] = [v["crops"] for v in per_view]
+    return out, maps
+
+
+def _strip(panels: list[np.ndarray], gap: int = 4) -> np.ndarray:
+    """(H, sum of widths + gaps, 3) uint8 of (H, w, 3) float panels in [0, 1], white gaps between them."""
+    white = np.ones((panels[0].shape[0], gap, 3), np.float32)
+    row = [panels[0]]
+    for p in panels[1:]:
+        row += [white, p]
+    return (np.clip(np.concatenate(row, axis=1), 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def side_by_side(field_image: np.ndarray, bundle_image: np.ndarray, full_scale: float = 0.1,
+                 flip_panel: np.ndarray | None = None) -> np.ndarray:
+    """(H, 3W + 2*gap, 3) uint8: field | bundle | error heat map; with ``flip_panel`` (H, W, 3) float (the
+    coloured FLIP map) a fourth panel: (H, 4W + 3*gap, 3)."""
     heat = metrics.error_heatmap(bundle_image, field_image, full_scale)
-    h = field_image.shape[0]
-    gap = np.ones((h, 4, 3), np.float32)
-    row = np.concatenate([field_image, gap, bundle_image, gap, heat], axis=1)
-    return (np.clip(row, 0, 1) * 255 + 0.5).astype(np.uint8)
+    return _strip([field_image, bundle_image, heat] + ([flip_panel] if flip_panel is not None else []))
+
+
+def crop_strip(field_image: np.ndarray, bundle_image: np.ndarray, flip_panel: np.ndarray,
+               box: list[int]) -> np.ndarray:
+    """(h, 3w + 2*gap, 3) uint8: field | bundle | FLIP panel cut to ``box`` [x0, y0, w, h], no scaling."""
+    x0, y0, w, h = box
+    return _strip([np.asarray(p)[y0:y0 + h, x0:x0 + w] for p in (field_image, bundle_image, flip_panel)])

@@ -1,5 +1,6 @@
-"""The run's report: ``report.json`` (contract keys), ``report.md``, side-by-side images, and the plot of
-error against run time (plus training PSNR against wall time)."""
+"""The run's report: ``report.json`` (contract keys), ``report.md``, side-by-side images (field | bundle |
+error | FLIP), native-resolution crops of the worst silhouette and interior areas, and the plot of error
+against run time (plus training PSNR against wall time). The only module that imports matplotlib."""
 
 from __future__ import annotations
 
@@ -8,11 +9,39 @@ from pathlib import Path
 
 import numpy as np
 
-from .evaluate import side_by_side
+from .evaluate import crop_strip, side_by_side
+
+CROP_NAMES = {"a": "silhouette band", "b": "interior"}
 
 
 def _mb(n) -> str:
     return "-" if n is None else f"{n / 1e6:.2f} MB"
+
+
+def _db(x) -> str:
+    return "n/a" if x is None else f"{x:.2f} dB"
+
+
+def _fidelity_rows(rep: dict) -> list[tuple[str, str, str]]:
+    """Rows of the summary table for FLIP, region PSNRs and holes (absent in reports without them)."""
+    if "flip" not in rep:
+        return []
+    return [("FLIP vs field (0 = same)", "reference", f"{rep['flip']:.4f}"),
+            ("PSNR interior / silhouette", "reference",
+             f"{_db(rep['psnr_interior'])} / {_db(rep['psnr_silhouette'])}"),
+            ("holes (field opaque, no mesh)", "-", f"{100 * rep['hole_fraction']:.3f}% of pixels")]
+
+
+def flip_colors(error_map: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32 magma colours of an (H, W) FLIP map (0 black, 1 pale yellow); NaN pixels cyan."""
+    import matplotlib
+
+    lut = matplotlib.colormaps["magma"](np.linspace(0.0, 1.0, 256))[:, :3].astype(np.float32)
+    e = np.asarray(error_map, dtype=np.float32)
+    bad = ~np.isfinite(e)
+    out = lut[np.clip(np.nan_to_num(e, nan=0.0) * 255 + 0.5, 0, 255).astype(np.int64)]
+    out[bad] = (0.0, 1.0, 1.0)
+    return out
 
 
 def summary_table(rep: dict) -> str:
@@ -28,6 +57,7 @@ def summary_table(rep: dict) -> str:
         (f"FPS @ {w}x{h}", f"{rep['fps_before']:.3g}", f"{rep['fps_after']:.4g}"),
         ("frame time (median)", f"{ft['field_median']:.1f} ms", f"{ft['bundle_median']:.2f} ms"),
         ("PSNR / SSIM vs field", "reference", f"{rep['psnr']:.2f} dB / {rep['ssim']:.4f}"),
+        *_fidelity_rows(rep),
         ("OpenGL vs torch parity", "-", f"{rep['parity_psnr']:.1f} dB"),
         ("faces", "-", f"{rep['mesh_faces']}"),
         ("texture", "-", f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
@@ -72,8 +102,47 @@ def _skybox_lines(rep: dict) -> list[str]:
     return lines
 
 
+def _fidelity_lines(rep: dict) -> list[str]:
+    """report.md section: definitions, per-view FLIP / region PSNR / holes, and what each crop shows."""
+    if "flip" not in rep:
+        return []
+    band = rep.get("silhouette_band_px")
+    lines = ["## Fidelity by region", "",
+             "Regions come from the field's own opacity of each held-out view. "
+             f"**Silhouette band**: pixels within {band} px of the boundary of the field's mask "
+             "(opacity > 0.5), on either side, plus every pixel with 0.02 < opacity < 0.98 "
+             "(the soft fringe); "
+             "the width is max(2, round(0.004 x image diagonal)). "
+             "**Interior**: opacity > 0.98 and not in the band. "
+             "**Holes**: pixels where the field is opaque (opacity > 0.5) but the bundle's mesh "
+             "covers nothing (rasterized as played), as a fraction of all held-out pixels. "
+             "**FLIP**: NVIDIA's LDR-FLIP perceptual error (0 = no visible difference, 1 = maximal), at its "
+             "default 67 pixels per degree; means are means of per-view values.", "",
+             "| view | FLIP | PSNR | PSNR interior | PSNR silhouette | holes |", "|---|---|---|---|---|---|"]
+    for i, fl in enumerate(rep["flip_per_view"]):
+        lines.append(f"| {i} | {fl:.4f} | {_db(rep['psnr_per_view'][i])} "
+                     f"| {_db(rep['psnr_interior_per_view'][i])} | {_db(rep['psnr_silhouette_per_view'][i])} "
+                     f"| {100 * rep['hole_fraction_per_view'][i]:.3f}% |")
+    lines.append(f"| mean | {rep['flip']:.4f} | {_db(rep['psnr'])} | {_db(rep['psnr_interior'])} "
+                 f"| {_db(rep['psnr_silhouette'])} | {100 * rep['hole_fraction']:.3f}% |")
+    lines += ["", "Crops at native resolution (field | bundle | FLIP, magma: black 0 to pale yellow 1), each "
+                  "centred where the FLIP map, box-filtered over 32x32 pixels of one region, is highest:", ""]
+    for i, crops in enumerate(rep.get("crops") or []):
+        for key, name in CROP_NAMES.items():
+            c = crops.get(key)
+            if c is None:
+                lines.append(f"- view {i}, {name}: none (the view has no {name} pixels)")
+                continue
+            x0, y0, cw, ch = c["box"]
+            lines.append(f"- view {i}, {name} (worst FLIP, mean {c['flip']:.4f} on its {name} pixels), "
+                         f"x {x0}-{x0 + cw}, y {y0}-{y0 + ch}: "
+                         f"![view {i} {name}](views/crop_{i:02d}_{key}.png)")
+    return lines + [""]
+
+
 def markdown(rep: dict) -> str:
     w, h = rep["resolution"]
+    flip_row = [f"| FLIP vs field | reference | {rep['flip']:.4f} |"] if "flip" in rep else []
     lines = [
         "# neuras-distill report", "",
         f"Held-out views: {rep['views']['test']} at {w}x{h}; trained on {rep['views']['train']} views at "
@@ -83,6 +152,7 @@ def markdown(rep: dict) -> str:
         f"| speedup | | {rep['speedup']:.0f}x |",
         f"| PSNR vs field | reference | {rep['psnr']:.2f} dB |",
         f"| SSIM vs field | reference | {rep['ssim']:.4f} |",
+        *flip_row,
         f"| LPIPS | | {rep['lpips'] if rep['lpips'] is not None else 'n/a: ' + rep.get('lpips_note', '')} |",
         f"| OpenGL vs torch forward (parity) | | {rep['parity_psnr']:.1f} dB |",
         f"| faces | | {rep['mesh_faces']} |",
@@ -100,7 +170,8 @@ def markdown(rep: dict) -> str:
         "| renderer | seconds/frame | PSNR |", "|---|---|---|",
         *[f"| {p['label']} | {p['seconds_per_frame']:.4f} | {p['psnr']:.2f} |" for p in rep["error_vs_runtime"]],
         "", "![error vs runtime](error_vs_runtime.png)", "",
-        "## Held-out views (field | bundle | error x10)", "",
+        *_fidelity_lines(rep),
+        "## Held-out views (field | bundle | error x10" + (" | FLIP" if "flip" in rep else "") + ")", "",
         *[f"![view {i}](views/view_{i:02d}.png) PSNR {p:.2f} dB" for i, p in enumerate(rep["psnr_per_view"])],
         "",
     ]
@@ -143,15 +214,23 @@ def plot(rep: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_run_outputs(root: Path, rep: dict, field_images, bundle_images, extra_views: dict | None = None) -> None:
-    """report.json, report.md, the error-vs-runtime plot and views/ (field | bundle | error per held-out view;
-    ``extra_views`` {name: [(field, bundle), ...]} are saved as views/<name>_<i>.png)."""
+def write_run_outputs(root: Path, rep: dict, field_images, bundle_images, extra_views: dict | None = None,
+                      flip_maps: list | None = None) -> None:
+    """report.json, report.md, the error-vs-runtime plot and views/: per held-out view field | bundle | error
+    (| FLIP with ``flip_maps`` [(H, W) float32]), and then views/crop_<i>_a.png and _b.png, the windows
+    ``rep["crops"]`` names; ``extra_views`` {name: [(field, bundle), ...]} are saved as
+    views/<name>_<i>.png."""
     from PIL import Image
 
     views = root / "views"
     views.mkdir(exist_ok=True)
+    crops = rep.get("crops") or []
     for i, (f, b) in enumerate(zip(field_images, bundle_images)):
-        Image.fromarray(side_by_side(f, b)).save(views / f"view_{i:02d}.png")
+        panel = flip_colors(flip_maps[i]) if flip_maps is not None else None
+        Image.fromarray(side_by_side(f, b, flip_panel=panel)).save(views / f"view_{i:02d}.png")
+        if panel is not None and i < len(crops):
+            for key, c in crops[i].items():
+                Image.fromarray(crop_strip(f, b, panel, c["box"])).save(views / f"crop_{i:02d}_{key}.png")
     for name, pairs in (extra_views or {}).items():
         for i, (f, b) in enumerate(pairs):
             Image.fromarray(side_by_side(f, b)).save(views / f"{name}_{i:02d}.png")

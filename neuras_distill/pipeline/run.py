@@ -101,9 +101,96 @@ def _resolve_skyboxes(field, cfg: DistillConfig, gbuffer, left_out: list) -> tup
     return True, f"{100 * uncovered:.1f}% of training pixels miss the mesh and {bg_reason}"
 
 
-def _resolve_view_dependence(field, mesh, cfg: DistillConfig, left_out: list) -> tuple[bool, float | None]:
+def _training_budget(cfg: DistillConfig, teacher_seconds: float, train: Cameras, test: Cameras, field) -> dict:
+    """The training plan's limits, known once the teacher has run: ``time_budget_s`` (configured, or a share
+    of the run's volume rendering, ``decisions.training_time_budget``), the measured ``steps_per_second`` and
+    ``max_steps`` (configured steps, or what the budget affords). Steps are fixed later (:func:`_plan_steps`)."""
+    tr = cfg.train
+    samples_per_step = tr.batch_patches * tr.patch ** 2
+    # held-out views, plus the error-vs-runtime curve on one view (a 2x reference and each step count) and
+    # the lane-shifted views of scenes that define them
+    curve = (2 * cfg.teacher.num_steps + sum(cfg.eval.runtime_steps) + cfg.teacher.num_steps) / cfg.teacher.num_steps
+    shifts = 2 * len(getattr(field, "lane_shifts", None) or [])
+    eval_pixels = int((len(test) + curve + shifts) * test.width * test.height)
+    budget = tr.time_budget_s or decisions.training_time_budget(teacher_seconds, len(train) * train.width * train.height,
+                                                                 eval_pixels)
+    plan = {"time_budget_s": float(budget), "samples_per_step": samples_per_step, "steps_per_second": None,
+            "configured_steps": tr.steps or None}
+    if tr.steps:
+        plan["max_steps"] = tr.steps
+    else:
+        t = cfg.texture
+        speed = decisions.probe_training_speed(t.feature_dim, t.num_codes, t.hidden, t.num_layers,
+                                               tr.batch_patches, tr.patch)
+        plan.update(steps_per_second=speed, max_steps=max(decisions.MIN_TRAIN_STEPS, int(budget * speed)))
+    return plan
+
+
+def _plan_steps(plan: dict, mesh, tex_res: int, left_out: list) -> None:
+    """Fix ``plan["steps"]``: configured, or enough for ``decisions.TARGET_SAMPLES_PER_TEXEL`` samples per used
+    texel of the ``tex_res`` atlas within ``max_steps``; the choice is reported in ``left_out``."""
+    from ..neural.train import uv_area_fraction
+
+    used = uv_area_fraction(mesh.uvs, mesh.faces) * tex_res ** 2
+    steps, needed = decisions.training_steps(used, plan["samples_per_step"], plan["max_steps"])
+    if plan["configured_steps"]:
+        steps = plan["configured_steps"]
+    plan.update(steps=int(steps), needed_steps=int(needed), used_texels=int(used))
+    if plan["configured_steps"]:
+        why = (f"{steps} steps as configured ({needed} would give {decisions.TARGET_SAMPLES_PER_TEXEL} samples per "
+               "used texel)")
+    elif needed > plan["max_steps"]:
+        why = (f"{steps} steps: the {plan['time_budget_s']:.0f} s budget ({100 * decisions.TRAIN_TIME_FRACTION:.0f}% "
+               f"of the run's volume rendering at {plan['steps_per_second']:.0f} steps/s) affords fewer than the "
+               f"{needed} that give {decisions.TARGET_SAMPLES_PER_TEXEL} samples to each of {int(used)} used texels")
+    else:
+        why = (f"{steps} steps give {decisions.TARGET_SAMPLES_PER_TEXEL} samples to each of {int(used)} used "
+               f"texels (at least {decisions.MIN_TRAIN_STEPS}); the time budget would allow {plan['max_steps']}")
+    plan["reason"] = why
+    left_out.append({"component": "training beyond the atlas's needs", "reason": why})
+
+
+def _resolve_fringe(field, cfg: DistillConfig, opacity: np.ndarray, left_out: list) -> bool:
+    """Whether the mesh should enclose the field's soft fringe (see ``geometry.marching``): when the fringe is
+    at least ``decisions.FRINGE_MIN_PIXELS`` wide in the training views and the background is one constant
+    colour (over it, a partly opaque fringe pixel is one colour per view and angle, which the texture learns
+    with the facing input; over skyboxes it is not)."""
+    mode = cfg.geometry.enclose_fringe
+    if mode != "auto":
+        return mode == "on"
+    width = decisions.fringe_width_pixels(opacity)
+    if width < decisions.FRINGE_MIN_PIXELS:
+        left_out.append({"component": "soft-fringe shell",
+                         "reason": f"the field's fringe is {width:.1f} training pixels wide (< "
+                                   f"{decisions.FRINGE_MIN_PIXELS:g}): the mesh stays at the surface level"})
+        return False
+    constant, _ = decisions.background_is_constant(field)
+    if not constant:
+        left_out.append({"component": "soft-fringe shell",
+                         "reason": f"the field's fringe is {width:.1f} training pixels wide, but the background "
+                                   "is not one colour (skyboxes): the mesh stays at the surface level"})
+    return constant
+
+
+def _resolve_facing(mesh, enclose: bool, left_out: list) -> bool:
+    """The facing cosine |n . d| as a shader input when the mesh was moved out to enclose a soft fringe
+    (its grazing pixels fade with the angle; see ``neural/shader.py``); otherwise left out, with the reason."""
+    moved = (mesh.stats.get("mc_fringe_offset_voxels") or 0) > 0 or (mesh.stats.get("mc_fringe_divisor") or 1) > 1
+    if enclose and moved:
+        return True
+    if enclose:
+        left_out.append({"component": "facing input",
+                         "reason": "the mesh at the field's surface level already covers its opaque pixels"})
+    return False
+
+
+def _resolve_view_dependence(field, mesh, cfg: DistillConfig, left_out: list,
+                             fringe_shell: bool = False) -> tuple[bool, float | None]:
+    """(use the view direction, measured spread). A mesh moved out to a soft fringe's shell keeps it whatever
+    the field's own radiance does: a ray crossing the fringe averages colours along its path, so the colour at
+    a shell point changes with the direction (gradient ball: held-out interior 24.3 dB without it)."""
     mode = cfg.texture.view_dependence
-    if mode == "on":
+    if mode == "on" or (mode == "auto" and fringe_shell):
         return True, None
     if mode == "off":
         left_out.append({"component": "view direction", "reason": "turned off by configuration"})
@@ -171,7 +258,7 @@ def _pick_cameras(field, cameras, cfg: DistillConfig) -> Cameras:
 
 def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool) -> DistillResult:
     from ..bake.bundle import bake
-    from ..neural.model import NeuralTextureModel
+    from ..neural.model import NeuralTextureModel, view_inputs
     from ..neural.train import fit
     from ..geometry.extract import extract_mesh
     from ..playback.context import gl_info
@@ -206,10 +293,12 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     stages.start("teacher", f"volume-rendering {len(train)} training views at {train.width}x{train.height}, "
                             f"{cfg.teacher.num_steps} steps/ray")
     teacher = VolumeRenderer(field, num_steps=cfg.teacher.num_steps)
-    train_images, _ = evaluate.render_field_timed(teacher, train, _progress_printer(log, "teacher", progress))
+    train_images, train_opacities, _ = evaluate.render_field_views(teacher, train,
+                                                                   _progress_printer(log, "teacher", progress))
     targets = np.stack(train_images).astype(np.float32)
     require(bool(np.isfinite(targets).all()), "the field renders NaN or Inf colours; check its parameters")
-    stages.done(views=len(train))
+    teacher_seconds = stages.done(views=len(train))
+    plan = _training_budget(cfg, teacher_seconds, train, test, field)
 
     # 3. geometry -----------------------------------------------------------------------------------
     stages.start("geometry", f"marching cubes at {cfg.geometry.grid_resolution}, decimation to "
@@ -218,18 +307,21 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
 
     def by_texel_density(unwrapped):
         side, info = decisions.texel_density_resolution(unwrapped, train, hi=cfg.texture.max_resolution)
-        samples = cfg.train.steps * cfg.train.batch_patches * cfg.train.patch ** 2
+        samples = plan["max_steps"] * plan["samples_per_step"]
         budget = decisions.training_budget_resolution(samples, info["uv_area"])
         density.update(info, chosen=min(side, budget), budget=budget, samples=samples)
         return min(side, budget)
 
     auto_res = cfg.texture.resolution == 0
+    enclose = _resolve_fringe(field, cfg, np.stack(train_opacities), left_out)
     mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
                         face_budget=cfg.geometry.face_budget,
                         texture_resolution=min(1024, cfg.texture.max_resolution) if auto_res else cfg.texture.resolution,
                         unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen,
                         density_level=getattr(field, "surface_level", None),
-                        choose_resolution=by_texel_density if auto_res else None)
+                        choose_resolution=by_texel_density if auto_res else None,
+                        cull_margin_deg=cfg.geometry.cull_margin_deg,
+                        field_opacity=np.stack(train_opacities) if enclose else None)
     tex_res = int(mesh.stats["uv_resolution"])
     charts = int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
@@ -252,7 +344,9 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         left_out.append({"component": "unseen faces",
                          "reason": f"{culled} faces seen by no training camera were culled before unwrapping "
                                    "(they get no texels)"})
-    use_viewdir, view_spread = _resolve_view_dependence(field, mesh, cfg, left_out)
+    use_facing = _resolve_facing(mesh, enclose, left_out)
+    use_viewdir, view_spread = _resolve_view_dependence(field, mesh, cfg, left_out, fringe_shell=use_facing)
+    _plan_steps(plan, mesh, tex_res, left_out)
     stages.done(**{k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))})
 
     # 4. gbuffer ------------------------------------------------------------------------------------
@@ -262,7 +356,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     local_mesh = MeshData((mesh.vertices.astype(np.float64) - origin).astype(np.float32), mesh.faces, mesh.uvs,
                           mesh.stats)
     gbuffer = rasterize_gbuffer(local_mesh, shift_cameras(train, origin), cull_back_faces=cfg.geometry.cull_back_faces)
-    dirs = np.stack([train.rays(i)[1].numpy() for i in range(len(train))]).astype(np.float32)
+    dirs = view_inputs(np.stack([train.rays(i)[1].numpy() for i in range(len(train))]), gbuffer.face_id,
+                       local_mesh.face_normals(), use_facing)
     use_skybox, sky_reason = _resolve_skyboxes(field, cfg, gbuffer, left_out)
     skybox = None
     sb = cfg.skybox
@@ -281,13 +376,14 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     t = cfg.texture
     stages.start("distill", f"{tex_res}^2 x {t.feature_dim} feature atlas, {t.num_codes} codes, "
                             f"MLP {t.num_layers}x{t.hidden}{'' if use_viewdir else ' (no view input)'}, "
-                            f"{cfg.train.steps} steps")
+                            f"{plan['steps']} steps (at most {plan['time_budget_s']:.0f} s)")
     model = NeuralTextureModel(tex_res, tex_res, feature_dim=t.feature_dim, num_codes=t.num_codes,
-                               hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir)
-    train_log = fit(model, gbuffer.uv, gbuffer.coverage, dirs, targets, steps=cfg.train.steps,
+                               hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir,
+                               use_facing=use_facing)
+    train_log = fit(model, gbuffer.uv, gbuffer.coverage, dirs, targets, steps=plan["steps"],
                     lr=cfg.train.lr, batch_patches=cfg.train.batch_patches, patch=cfg.train.patch,
                     ssim_weight=cfg.train.ssim_weight, vq_warmup=cfg.train.vq_warmup,
-                    time_budget_s=cfg.train.time_budget_s or None,
+                    time_budget_s=plan["time_budget_s"],
                     progress=progress, seed=cfg.train.seed, skybox=skybox,
                     origins=sky_origins if skybox is not None else None)
     train_history = list(train_log.entries)
@@ -312,7 +408,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
 
     # 7. evaluate -----------------------------------------------------------------------------------
     stages.start("evaluate", f"{len(test)} held-out views at {test.width}x{test.height}: field vs bundle")
-    field_images, field_seconds = evaluate.render_field_timed(
+    field_images, field_opacities, field_seconds = evaluate.render_field_views(
         teacher, test, _progress_printer(log, "field (held-out)", progress))
     player = BundleRenderer(bundle)
     bundle_images = [player.render(test, i) for i in range(len(test))]
@@ -320,6 +416,12 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     parity = evaluate.gl_torch_parity(model, local_mesh, shift_cameras(test, origin), bundle_images[0], bg.numpy(),
                                       lambda m, c: rasterize_gbuffer(m, c, cull_back_faces=cfg.geometry.cull_back_faces),
                                       skybox=skybox, world_cameras=test)
+    t_fid = time.perf_counter()
+    coverages = evaluate.bundle_coverage(
+        lambda c: rasterize_gbuffer(local_mesh, c, cull_back_faces=cfg.geometry.cull_back_faces),
+        shift_cameras(test, origin))
+    fid, flip_maps = evaluate.fidelity(bundle_images, field_images, field_opacities, coverages)
+    fid_seconds = time.perf_counter() - t_fid
     ablation = None
     if skybox is not None and sb.ablation:
         no_sky = evaluate.compare([player.render(test, i, skybox=False) for i in range(len(test))], field_images)
@@ -334,7 +436,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     fps_before = 1.0 / float(np.median(field_seconds))
     fps_after = float(timing["fps"])
     extrapolation, extra_views = _lane_shift_views(field, teacher, player, test)
-    stages.done(psnr=quality["psnr"], ssim=quality["ssim"], parity_psnr=parity)
+    stages.done(psnr=quality["psnr"], ssim=quality["ssim"], parity_psnr=parity, flip=fid["flip"],
+                hole_fraction=fid["hole_fraction"], fidelity_seconds=fid_seconds)
 
     float16_bytes = int(bundle.float16_nbytes())
     vq_bytes = int(bundle.feature_nbytes())
@@ -352,6 +455,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "parity_psnr": parity,
         "psnr_per_view": quality["psnr_per_view"],
         "ssim_per_view": quality["ssim_per_view"],
+        **fid,     # flip, psnr_interior, psnr_silhouette, hole_fraction (+ _per_view), silhouette_band_px, crops
+        "fidelity_seconds": fid_seconds,
         "distill_seconds": time.perf_counter() - t_start,
         "stage_seconds": stages.seconds,
         "mesh_faces": mesh.num_faces,
@@ -374,6 +479,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "error_vs_runtime": points,
         "frame_time_ms": {"field_median": 1000 * float(np.median(field_seconds)),
                           "bundle_median": timing["median_ms"], "bundle_p90": timing.get("p90_ms")},
+        "training_plan": plan,
         "train_log": train_history,
         "train_summary": {k: v for k, v in train_log.as_dict().items() if k != "entries"},
         "views": {"train": len(train), "test": len(test),
@@ -383,7 +489,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     }
     rep["distill_seconds"] = time.perf_counter() - t_start
     if root is not None:
-        report_mod.write_run_outputs(root, rep, field_images, bundle_images, extra_views)
+        report_mod.write_run_outputs(root, rep, field_images, bundle_images, extra_views, flip_maps)
     log(report_mod.summary_table(rep))
     return DistillResult(report=rep, out=root, bundle=bundle)
 
