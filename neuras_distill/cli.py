@@ -17,7 +17,8 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
     p.add_argument("--preset", default=None, help="settings preset: object (default), fast, quality")
     p.add_argument("--config", default=None, help="TOML file overriding settings (see configs/)")
     p.add_argument("--face-budget", type=int, default=None, help="maximum faces after decimation")
-    p.add_argument("--steps", type=int, default=None, help="distillation steps")
+    p.add_argument("--steps", type=int, default=None,
+                   help="distillation steps (default 0: planned from the atlas within the time budget)")
     p.add_argument("--texture-resolution", type=int, default=None, help="side of the feature atlas in texels")
     p.add_argument("--view-dependence", choices=["auto", "on", "off"], default=None,
                    help="view-direction input of the shader (auto: decided from the field)")

@@ -108,9 +108,9 @@ class SkyboxConfig:
 @dataclass
 class TrainConfig:
     steps: int = 0
-    """Optimisation steps. 0 (default): planned per run from what the scene needs, 256 training samples per
+    """Optimisation steps. 0 (default): planned per run from what the scene needs, 1024 training samples per
     used texel of the atlas (``pipeline.decisions.training_steps``), within the time budget; reported in the
-    report's ``training_plan``."""
+    report's ``training_plan``. Configured steps run to the end unless ``time_budget_s`` is set too."""
     time_budget_s: float = 0.0
     """Stop training after this many seconds. 0 (default): half of the time the run spends volume rendering
     the field (teacher renders plus held-out evaluation, ``decisions.training_time_budget``)."""
@@ -172,8 +172,8 @@ class DistillConfig:
         require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
         require(t.view_dependence in ("auto", "on", "off"),
                 f"view_dependence must be auto, on or off, got {t.view_dependence!r}")
-        require(tr.steps >= 0, f"training steps must be at least 1 (0: automatic), got {tr.steps}")
-        require(tr.time_budget_s >= 0, f"training time budget must be positive (0: automatic), got {tr.time_budget_s}")
+        require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
+        require(tr.time_budget_s >= 0, f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
         require(0.0 <= tr.vq_warmup <= 1.0, f"vq_warmup must be in 0..1 (1: quantize after training), "
                                             f"got {tr.vq_warmup}")
         require((self.eval.width == 0 or self.eval.width >= 16) and self.teacher.train_width >= 16,

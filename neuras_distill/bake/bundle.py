@@ -192,7 +192,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
         "texture_width": int(model.tex_width), "texture_height": int(model.tex_height),
         "feature_dim": int(dim), "num_codes": int(k), "num_codes_trained": int(model.num_codes),
         "use_vq": bool(model.use_vq), "use_viewdir": bool(model.use_viewdir),
-        "use_facing": bool(getattr(model.shader, "use_facing", False)),
+        "use_facing": bool(model.use_facing),
         "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
         "mesh_vertices": int(mesh.num_vertices), "mesh_faces": int(mesh.num_faces),
         "float16_feature_bytes": float16_feature_nbytes(model.tex_height, model.tex_width, dim),

@@ -11,8 +11,8 @@ Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward 
   features 4c..4c+3 of code k (zero padded);
 - the MLP unrolled as ``mat4 * vec4`` blocks with the weights as float literals (9 significant digits, so every
   literal is exactly the float32 weight); all-zero blocks are skipped; ReLU = max(x, 0), sigmoid = 1/(1+exp(-x));
-- the view direction ``normalize(v_world - u_cam_pos)`` only when the model uses it (otherwise the shader
-  declares no ``u_cam_pos`` at all), in a vec4 whose w is the facing cosine ``|n . d|`` when the model uses
+- the view direction ``normalize(v_world - u_cam_pos)`` only when the model uses it or the facing cosine
+  (otherwise the shader declares no ``u_cam_pos`` at all), in a vec4 whose w is the facing cosine ``|n . d|`` when the model uses
   it (``MLPShader.use_facing``; n from ``cross(dFdx(v_world), dFdy(v_world))``: within one triangle the
   interpolated position is affine, so this is the face's own normal, the one torch takes from the face id).
 
@@ -113,7 +113,7 @@ def generate_fragment_shader(model) -> str:
     tex_w, tex_h, dim = int(model.tex_width), int(model.tex_height), int(model.feature_dim)
     c4 = (dim + 3) // 4
     use_dir = bool(model.shader.use_viewdir)
-    use_facing = bool(getattr(model.shader, "use_facing", False))
+    use_facing = bool(model.use_facing)
     layers = model.shader.weights()
 
     out: list[str] = [

@@ -211,7 +211,7 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
         chunk_points: points per field evaluation (memory bound).
         fringe_check: optional callable (MeshData) -> fraction of the field's opaque pixels the mesh misses;
             the level then moves outwards (:func:`outward_levels`) until it is at most ``fringe_tolerance``
-            (or the last candidate is reached; the one missing least is kept).
+            (or the last candidate is reached; see :func:`_enclose_fringe`).
 
     Returns:
         MeshData (vertices (V, 3) float32 world, faces (F, 3) int32 CCW from outside) with ``stats``: grid
@@ -251,22 +251,26 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
 
 def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, tolerance: float,
                     stats: dict) -> tuple[MeshData, float]:
-    """The tightest mesh among :func:`outward_levels` that misses at most ``tolerance`` of the opaque pixels
-    (the least-missing one when none does); records what was tried in ``stats``."""
+    """The tightest mesh among :func:`outward_levels` that misses at most ``tolerance`` of the opaque pixels;
+    when none does, the least-missing one if it misses at most half of what the surface mesh misses, else the
+    surface mesh (chasing a trained NeRF's fog grows the mesh without covering the fringe). Records what was
+    tried in ``stats``."""
     voxel = float(spec.spacing.max())
     levels = outward_levels(kind, level, voxel)
     best = (check(mesh), 0, mesh)
-    missed_at_surface = best[0]
+    missed_at_surface, first = best[0], mesh
+    lo, hi = float(grid.min()), float(grid.max())
     for i, candidate in enumerate(levels[1:], start=1):
         if best[0] <= tolerance:
             break
-        lo, hi = float(grid.min()), float(grid.max())
         if not lo < candidate < hi:
             break
         trial = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, candidate)
         missed = check(trial)
         if missed < best[0]:
             best = (missed, i, trial)
+    if best[0] > tolerance and best[0] > 0.5 * missed_at_surface:     # moving out barely helped: keep the surface
+        best = (missed_at_surface, 0, first)
     missed, index, mesh = best
     stats.update(mc_surface_level=level, mc_fringe_missed_at_surface=missed_at_surface, mc_fringe_missed=missed)
     if kind == "sdf":

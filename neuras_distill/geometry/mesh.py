@@ -47,6 +47,16 @@ class MeshData:
         length = np.linalg.norm(n, axis=1, keepdims=True)
         return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0).astype(np.float32)
 
+    def uv_area(self) -> float:
+        """Fraction of the unit uv square the faces cover (sum of |uv triangle areas|, float64; 0 without uvs):
+        times an atlas's texel count, the number of texels its training has to fill."""
+        if self.uvs is None or not self.num_faces:
+            return 0.0
+        t = self.uvs.astype(np.float64)[self.faces]
+        area = 0.5 * np.abs((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1])
+                            - (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0]))
+        return float(area.sum())
+
     def __repr__(self) -> str:
         uv = "none" if self.uvs is None else f"{self.uvs.shape} {self.uvs.dtype}"
         return (f"MeshData(vertices={self.vertices.shape} {self.vertices.dtype}, "

@@ -32,10 +32,12 @@ from ..errors import BadInputError
 from .mesh import MeshData
 
 
-def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536,
-               scene=None) -> tuple[np.ndarray, int, np.ndarray]:
+def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, scene=None,
+               front_only: bool = False) -> tuple[np.ndarray, int, np.ndarray]:
     """(F,) bool mask of faces hit first by at least one subsampled pixel ray, the number of rays cast, and
-    (N,) float64 median first-hit distance per camera (inf for a camera whose rays hit nothing)."""
+    (N,) float64 median first-hit distance per camera (inf for a camera whose rays hit nothing).
+    ``front_only``: count only hits on a face's front (a camera that ended up inside the geometry, e.g. a
+    neighbour camera below a street's ground, sees back faces no real view shows)."""
     scene = scene or _raycasting_scene(mesh)
     w, h = cameras.width, cameras.height
     scale = min(1.0, math.sqrt(max(1, int(max_rays_per_camera)) / float(w * h)))
@@ -44,6 +46,7 @@ def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536,
     invalid = o3d.t.geometry.RaycastingScene.INVALID_ID
     seen = np.zeros(mesh.num_faces, dtype=bool)
     distances = np.full(len(cameras), np.inf)
+    normals = None
     total = 0
     for i in range(len(cameras)):
         o, d = cameras.rays(i)
@@ -52,6 +55,9 @@ def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536,
         hits = scene.cast_rays(o3d.core.Tensor(rays))
         ids = hits["primitive_ids"].numpy().reshape(-1)
         hit = ids != invalid
+        if front_only:
+            normals = normals if normals is not None else mesh.face_normals()
+            hit[hit] = np.einsum("ij,ij->i", normals[ids[hit].astype(np.int64)], rays[hit, 3:]) < 0
         seen[ids[hit].astype(np.int64)] = True
         if hit.any():
             distances[i] = float(np.median(hits["t_hit"].numpy().reshape(-1)[hit]))
@@ -108,7 +114,7 @@ def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
 
 def neighbour_cameras(cameras, distances: np.ndarray, margin_deg: float):
     """Cameras near the given ones: each turned by +-``margin_deg`` about its own up and right axes around
-    its look-at point (``distances[i]`` along its optical axis). Cameras with an infinite distance (seeing
+    its look-at point (``distances[i]`` along its optical axis: the median first-hit distance of its rays). Cameras with an infinite distance (seeing
     nothing) get no neighbours. Returns a ``Cameras`` (4 per usable camera, same intrinsics) or None."""
     from ..render.cameras import Cameras
 
@@ -167,7 +173,7 @@ def cull_unseen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 655
     neighbours = neighbour_cameras(cameras, distances, margin_deg) if margin_deg > 0 else None
     if neighbours is not None:
         nearby, more_rays, _ = seen_faces(mesh, neighbours, max_rays_per_camera=max_rays_per_camera // 4,
-                                          scene=scene)
+                                          scene=scene, front_only=True)
         rays += more_rays
         nearby &= ~seen
     keep = seen | nearby

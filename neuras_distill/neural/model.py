@@ -93,6 +93,11 @@ class NeuralTextureModel(nn.Module):
         return owned
 
     @property
+    def use_facing(self) -> bool:
+        """Whether the shader takes the facing cosine |n . d| (``dirs`` then carry 4 columns)."""
+        return self.shader.use_facing
+
+    @property
     def num_codes(self) -> int:
         return self.vq.num_codes if self.vq is not None else 0
 

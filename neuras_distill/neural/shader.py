@@ -47,7 +47,7 @@ class MLPShader(nn.Module):
 
     def forward(self, features: torch.Tensor, dirs: torch.Tensor | None = None) -> torch.Tensor:
         """features (B, D), dirs (B, 3) unit directions, or (B, 4) with the facing cosine when use_facing
-        (ignored when use_viewdir is False) -> rgb (B, 3) in (0, 1)."""
+        (the direction columns are ignored when use_viewdir is False) -> rgb (B, 3) in (0, 1)."""
         h = features
         if self.view_dim:
             need = 4 if self.use_facing else 3

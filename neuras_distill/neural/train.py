@@ -96,7 +96,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     Args:
         uv: (N, H, W, 2) float32 G-buffer texture coordinates; coverage: (N, H, W) bool;
         dirs: (N, H, W, 3) float32 unit view directions ((N, H, W, 4) with the facing cosine when the model's
-            shader uses it, ``model.view_inputs``); targets: (N, H, W, 3) float32 teacher colours.
+            shader uses it, ``neural.model.view_inputs``); targets: (N, H, W, 3) float32 teacher colours.
         steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
         lr: MLP and codebook learning rate; texture_lr: texture learning rate (default 3 * lr).
         batch_patches, patch: patches per step and their side in pixels.
@@ -115,7 +115,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     cov = _as_tensor(coverage, torch.bool, "coverage", ())
     lead = tuple(cov.shape)
     uv_t = _as_tensor(uv, torch.float32, "uv", (2,), lead)
-    dirs_t = _as_tensor(dirs, torch.float32, "dirs", (4,) if model.shader.use_facing else (3,), lead)
+    dirs_t = _as_tensor(dirs, torch.float32, "dirs", (4,) if model.use_facing else (3,), lead)
     tgt_t = _as_tensor(targets, torch.float32, "targets", (3,), lead)
     n, h, w = lead
     cov_f = cov.reshape(-1)
@@ -201,7 +201,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             vq_loss = aux["vq_loss"]
             if skybox is not None:                    # every pixel counts: mesh where covered, sky elsewhere
                 sky = torch.nonzero(~m).flatten()
-                sky_rgb, sky_aux = skybox(origins_t[view].repeat_interleave(p * p, dim=0)[sky], dirs_f[pix[sky]])
+                sky_rgb, sky_aux = skybox(origins_t[view].repeat_interleave(p * p, dim=0)[sky], dirs_f[pix[sky], :3])
                 rgb = torch.empty(pix.numel(), 3, dtype=rgb.dtype).index_put((sel,), rgb).index_put((sky,), sky_rgb)
                 sel = torch.arange(pix.numel())
                 m = torch.ones_like(m)
@@ -252,15 +252,6 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         skybox.atlas.fill_unseen_texels()
         skybox.eval()
     return log
-
-
-def uv_area_fraction(uvs: np.ndarray, faces: np.ndarray) -> float:
-    """Fraction of the unit uv square the faces cover (sum of |uv triangle areas|): times the atlas's texel
-    count, the number of texels training has to fill."""
-    t = np.asarray(uvs, np.float64)[np.asarray(faces)]
-    area = 0.5 * np.abs((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1])
-                        - (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0]))
-    return float(min(1.0, area.sum()))
 
 
 @torch.no_grad()

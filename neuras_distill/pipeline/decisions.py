@@ -111,11 +111,7 @@ def texel_density_resolution(mesh: MeshData, cameras, *, pixels_per_texel: float
         # pinhole footprint of a small patch: area * cos * f^2 * distance / depth^3
         foot = np.where(ok, area * facing * fx * fy * dist / np.maximum(depth, 1e-30) ** 3, 0.0)
         np.maximum(best, foot, out=best)
-    uv = mesh.uvs.astype(np.float64)
-    ut = uv[f]
-    uv_area = 0.5 * np.abs((ut[:, 1, 0] - ut[:, 0, 0]) * (ut[:, 2, 1] - ut[:, 0, 1])
-                           - (ut[:, 1, 1] - ut[:, 0, 1]) * (ut[:, 2, 0] - ut[:, 0, 0]))
-    pixels, uv_total = float(best.sum()), float(uv_area.sum())
+    pixels, uv_total = float(best.sum()), mesh.uv_area()
     exact = (float(np.sqrt(pixels / uv_total)) / float(pixels_per_texel)
              if uv_total > 0 and pixels > 0 else float(lo))
     r = int(min(hi, max(lo, multiple * np.ceil(exact / multiple))))
@@ -157,21 +153,24 @@ def training_time_budget(teacher_seconds: float, teacher_pixels: int, eval_pixel
     return float(max(floor_s, fraction * (teacher_seconds + per_pixel * eval_pixels)))
 
 
-def probe_training_speed(feature_dim: int, num_codes: int, hidden: int, num_layers: int, batch_patches: int,
-                         patch: int, steps: int = 40, side: int = 256) -> float:
+def probe_training_speed(feature_dim: int, hidden: int, num_layers: int, batch_patches: int, patch: int,
+                         steps: int = 60, side: int = 256) -> float:
     """Optimisation steps per second of ``neural.train.fit`` on this machine for this model size, measured on a
-    small synthetic problem (random uvs; a step's cost does not depend on the data)."""
+    small synthetic problem (random uvs; a step's cost does not depend on the data) after 20 warm-up steps.
+    Continuous features (quantization happens after training and costs no steps); no skybox (scenes with
+    skyboxes train a little slower than probed)."""
     from ..neural.model import NeuralTextureModel
     from ..neural.train import fit
 
     gen = torch.Generator().manual_seed(0)
     n, h, w = 2, 4 * patch, 4 * patch
-    model = NeuralTextureModel(side, side, feature_dim=feature_dim, num_codes=num_codes, hidden=hidden,
-                               num_layers=num_layers)
+    model = NeuralTextureModel(side, side, feature_dim=feature_dim, hidden=hidden, num_layers=num_layers,
+                               use_vq=False)
     uv = torch.rand(n, h, w, 2, generator=gen)
     dirs = torch.nn.functional.normalize(torch.randn(n, h, w, 3, generator=gen), dim=-1)
-    log = fit(model, uv, torch.ones(n, h, w, dtype=torch.bool), dirs, torch.rand(n, h, w, 3, generator=gen),
-              steps=steps, batch_patches=batch_patches, patch=patch, progress=False)
+    data = (uv, torch.ones(n, h, w, dtype=torch.bool), dirs, torch.rand(n, h, w, 3, generator=gen))
+    fit(model, *data, steps=20, batch_patches=batch_patches, patch=patch, progress=False)
+    log = fit(model, *data, steps=steps, batch_patches=batch_patches, patch=patch, progress=False)
     return float(log.steps_per_second)
 
 
@@ -184,10 +183,11 @@ def training_steps(used_texels: float, samples_per_step: int, affordable_steps: 
 
 
 #: Fringe width (training-view pixels) from which the mesh encloses the field's soft fringe. Measured with the
-#: same inputs and 1500 steps: the gradient ball (fringe ~10 px at 640 wide) went from 29.9 to 34.8 dB
-#: held-out (silhouette band 17.0 -> 25.0 dB); the demo bunny (a NeuS fringe about a pixel wide) went from
-#: 33.9 to 30.6 dB: half a voxel of offset showed surface colour where the field shows background.
-FRINGE_MIN_PIXELS = 3.0
+#: same inputs and 1500 steps: the gradient ball (fringe 13 px at 640 wide) went from 29.9 to 34.8 dB
+#: held-out (silhouette band 17.0 -> 25.0 dB); the demo bunny (fringe 1.5 px) went from 33.9 to 30.6 dB: half
+#: a voxel of offset showed surface colour where the field shows background. The NeuS fixture (a fringe
+#: of more than 3 px at 400 wide) lost 1 dB with the shell (31.6 vs 32.5 dB).
+FRINGE_MIN_PIXELS = 8.0
 
 
 def fringe_width_pixels(opacity: np.ndarray, lo: float = 0.05, hi: float = 0.95) -> float:

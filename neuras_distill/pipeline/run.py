@@ -116,12 +116,11 @@ def _training_budget(cfg: DistillConfig, teacher_seconds: float, train: Cameras,
                                                                  eval_pixels)
     plan = {"time_budget_s": float(budget), "samples_per_step": samples_per_step, "steps_per_second": None,
             "configured_steps": tr.steps or None}
-    if tr.steps:
-        plan["max_steps"] = tr.steps
+    if tr.steps:                   # configured steps run to the end unless a time budget is configured too
+        plan.update(max_steps=tr.steps, time_budget_s=tr.time_budget_s or None)
     else:
         t = cfg.texture
-        speed = decisions.probe_training_speed(t.feature_dim, t.num_codes, t.hidden, t.num_layers,
-                                               tr.batch_patches, tr.patch)
+        speed = decisions.probe_training_speed(t.feature_dim, t.hidden, t.num_layers, tr.batch_patches, tr.patch)
         plan.update(steps_per_second=speed, max_steps=max(decisions.MIN_TRAIN_STEPS, int(budget * speed)))
     return plan
 
@@ -129,9 +128,7 @@ def _training_budget(cfg: DistillConfig, teacher_seconds: float, train: Cameras,
 def _plan_steps(plan: dict, mesh, tex_res: int, left_out: list) -> None:
     """Fix ``plan["steps"]``: configured, or enough for ``decisions.TARGET_SAMPLES_PER_TEXEL`` samples per used
     texel of the ``tex_res`` atlas within ``max_steps``; the choice is reported in ``left_out``."""
-    from ..neural.train import uv_area_fraction
-
-    used = uv_area_fraction(mesh.uvs, mesh.faces) * tex_res ** 2
+    used = min(1.0, mesh.uv_area()) * tex_res ** 2
     steps, needed = decisions.training_steps(used, plan["samples_per_step"], plan["max_steps"])
     if plan["configured_steps"]:
         steps = plan["configured_steps"]
@@ -140,8 +137,8 @@ def _plan_steps(plan: dict, mesh, tex_res: int, left_out: list) -> None:
         why = (f"{steps} steps as configured ({needed} would give {decisions.TARGET_SAMPLES_PER_TEXEL} samples per "
                "used texel)")
     elif needed > plan["max_steps"]:
-        why = (f"{steps} steps: the {plan['time_budget_s']:.0f} s budget ({100 * decisions.TRAIN_TIME_FRACTION:.0f}% "
-               f"of the run's volume rendering at {plan['steps_per_second']:.0f} steps/s) affords fewer than the "
+        why = (f"{steps} steps: the {plan['time_budget_s']:.0f} s budget (at {plan['steps_per_second']:.0f} "
+               f"steps/s) affords fewer than the "
                f"{needed} that give {decisions.TARGET_SAMPLES_PER_TEXEL} samples to each of {int(used)} used texels")
     else:
         why = (f"{steps} steps give {decisions.TARGET_SAMPLES_PER_TEXEL} samples to each of {int(used)} used "
@@ -250,7 +247,11 @@ def _pick_cameras(field, cameras, cfg: DistillConfig) -> Cameras:
         make = getattr(field, "default_cameras", None)
         require(callable(make), "no cameras given and the field brings none; pass cameras "
                                 "(e.g. nd.Cameras.from_transforms('transforms.json'))")
-        cameras = make(cfg.cameras.num_views, cfg.cameras.width, cfg.cameras.height)
+        import inspect
+
+        extra = ({"held_out_every": cfg.cameras.test_every}
+                 if "held_out_every" in inspect.signature(make).parameters else {})
+        cameras = make(cfg.cameras.num_views, cfg.cameras.width, cfg.cameras.height, **extra)
     require(isinstance(cameras, Cameras), f"cameras must be an nd.Cameras, got {type(cameras).__name__}")
     require(len(cameras) >= 2, f"need at least 2 cameras (some to train on, some held out), got {len(cameras)}")
     return cameras
@@ -296,6 +297,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     train_images, train_opacities, _ = evaluate.render_field_views(teacher, train,
                                                                    _progress_printer(log, "teacher", progress))
     targets = np.stack(train_images).astype(np.float32)
+    train_opacity = np.stack(train_opacities)
     require(bool(np.isfinite(targets).all()), "the field renders NaN or Inf colours; check its parameters")
     teacher_seconds = stages.done(views=len(train))
     plan = _training_budget(cfg, teacher_seconds, train, test, field)
@@ -313,7 +315,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         return min(side, budget)
 
     auto_res = cfg.texture.resolution == 0
-    enclose = _resolve_fringe(field, cfg, np.stack(train_opacities), left_out)
+    enclose = _resolve_fringe(field, cfg, train_opacity, left_out)
     mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
                         face_budget=cfg.geometry.face_budget,
                         texture_resolution=min(1024, cfg.texture.max_resolution) if auto_res else cfg.texture.resolution,
@@ -321,7 +323,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                         density_level=getattr(field, "surface_level", None),
                         choose_resolution=by_texel_density if auto_res else None,
                         cull_margin_deg=cfg.geometry.cull_margin_deg,
-                        field_opacity=np.stack(train_opacities) if enclose else None)
+                        field_opacity=train_opacity if enclose else None)
     tex_res = int(mesh.stats["uv_resolution"])
     charts = int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
@@ -376,7 +378,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     t = cfg.texture
     stages.start("distill", f"{tex_res}^2 x {t.feature_dim} feature atlas, {t.num_codes} codes, "
                             f"MLP {t.num_layers}x{t.hidden}{'' if use_viewdir else ' (no view input)'}, "
-                            f"{plan['steps']} steps (at most {plan['time_budget_s']:.0f} s)")
+                            f"{plan['steps']} steps" + (f" (at most {plan['time_budget_s']:.0f} s)"
+                                                        if plan["time_budget_s"] else ""))
     model = NeuralTextureModel(tex_res, tex_res, feature_dim=t.feature_dim, num_codes=t.num_codes,
                                hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir,
                                use_facing=use_facing)
