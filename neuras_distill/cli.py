@@ -69,6 +69,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="SDF to opacity: NeuS logistic (default) or VolSDF Laplace")
     _add_run_options(p)
 
+    p = sub.add_parser("check", help="probe a field for stiff and extreme cases before distilling it")
+    p.add_argument("source", help="checkpoint path (.ingp / .msgpack / .pth / .ckpt), synthetic:NAME or extreme:NAME")
+    p.add_argument("--kind", choices=["sdf", "density"], default=None, help="synthetic scenes: field type")
+    p.add_argument("--cameras", default=None,
+                   help="transforms.json or NeuS cameras_sphere.npz (as from-ngp / from-sdf)")
+    p.add_argument("--foreground-box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1", help="as from-ngp")
+    p.add_argument("--latent-view", default=None, help="as from-ngp")
+    p.add_argument("--image-size", default=None, metavar="WxH", help="as from-sdf")
+    p.add_argument("--model-config", default=None, help="as from-sdf (instant-nsr-pl parsed.yaml)")
+    p.add_argument("--density", choices=["neus", "laplace"], default=None, help="as from-sdf")
+    p.add_argument("--preset", default=None, help="settings preset the adaptations are relative to")
+    p.add_argument("--config", default=None, help="TOML settings the adaptations are relative to")
+    p.add_argument("--samples", type=int, default=64, help="probe lattice points per axis (default 64)")
+    p.add_argument("--rays", type=int, default=512, help="probe rays (default 512)")
+    p.add_argument("--json", default=None, metavar="PATH", help="also write the report as JSON")
+
     p = sub.add_parser("view", help="play a bundle: render an orbit to PNG frames (headless)")
     p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
     p.add_argument("--orbit", action="store_true", help="render an orbit around the bundle to PNG frames")
@@ -186,6 +202,45 @@ def _int(text: str, flag: str) -> int:
         raise BadInputError(f"{flag} must be an integer, got {text!r}") from None
 
 
+def _check(args) -> int:
+    import json
+    from pathlib import Path
+
+    from .config import load_config
+    from .stability.probe import probe_field
+    from .stability.source import load_source
+
+    options: dict = {}
+    if args.latent_view is not None:
+        options["latent_view"] = args.latent_view if args.latent_view == "mean" else _int(args.latent_view,
+                                                                                          "--latent-view")
+    if args.foreground_box is not None:
+        options["foreground_box"] = _parse_box(args.foreground_box)
+    if args.image_size is not None:
+        w, _, h = args.image_size.lower().partition("x")
+        options["width"], options["height"] = _int(w, "--image-size"), _int(h, "--image-size")
+    if args.model_config is not None:
+        options["config"] = args.model_config
+    if args.density is not None:
+        options["density"] = args.density
+    preset = args.preset
+    if args.source == "synthetic:street" and preset is None and args.config is None:
+        preset = "street"                 # as from-synthetic street
+    cfg = load_config(preset=preset, path=args.config)
+    field, cameras = load_source(args.source, kind=args.kind, cameras_path=args.cameras, options=options)
+    report = probe_field(field, cameras, samples=args.samples, rays=args.rays, num_steps=cfg.teacher.num_steps,
+                         grid_resolution=cfg.geometry.grid_resolution, source=args.source)
+    print(report.to_table())
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report.to_json(), indent=2))
+    if report.verdict == "refused":
+        print(f"neuras-distill: error: {args.source} cannot be distilled: {report.reason()}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def _view(args) -> int:
     from pathlib import Path
 
@@ -216,6 +271,8 @@ def main(argv: list[str] | None = None) -> int:
             return _from_sdf(args)
         if args.command == "view":
             return _view(args)
+        if args.command == "check":
+            return _check(args)
     except BadInputError as exc:
         print(f"neuras-distill: error: {exc}", file=sys.stderr)
         return 2

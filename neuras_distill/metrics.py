@@ -2,6 +2,8 @@
 
 Both take (H, W, 3) float arrays in [0, 1] (data range 1). PSNR clamps the MSE at 1e-10 so identical images
 give 100 dB instead of inf; averages over several images are means of per-image values, never pooled MSE.
+A NaN or Inf pixel (in the compared region) makes PSNR and SSIM NaN: never a finite, good-looking score
+(before this rule a NaN pixel gave PSNR 100 dB, the best possible; tests/stability/test_metrics.py).
 SSIM uses an 11x11 Gaussian window (sigma 1.5), C1 = 0.01^2, C2 = 0.03^2, computed in float64 and averaged
 over the valid (un-padded) region and the three channels, as in Wang et al. 2004.
 
@@ -35,6 +37,8 @@ def psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = Non
     diff = (a - b) ** 2
     if mask is not None:
         diff = diff[np.asarray(mask, dtype=bool)]
+    if not np.isfinite(diff).all():
+        return float("nan")  # a NaN/Inf pixel: say so (max(nan, 1e-10) was nan and min(100, nan) gave 100 dB)
     mse = max(float(diff.mean()) if diff.size else 0.0, 1e-10)
     return float(min(MAX_PSNR, -10.0 * np.log10(mse)))
 
@@ -45,6 +49,8 @@ def ssim(image: np.ndarray, reference: np.ndarray) -> float:
     b = np.asarray(reference, dtype=np.float64)
     if a.shape != b.shape:
         raise ValueError(f"ssim: shapes differ {a.shape} vs {b.shape}")
+    if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        return float("nan")  # a NaN/Inf pixel spreads through the Gaussian window: no score, not a warning
     c1, c2 = 0.01 ** 2, 0.03 ** 2
     sigma, truncate = 1.5, 3.5  # radius 5 -> an 11x11 window
 

@@ -59,3 +59,45 @@ def test_view_missing_bundle(tmp_path, capsys):
     assert main(["view", str(tmp_path / "nothing"), "--orbit"]) == 2
     err = capsys.readouterr().err
     assert "nothing" in err and len(err.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------------------------------------- check
+def test_check_synthetic_bunny_prints_table():
+    result = _run("check", "synthetic:bunny")
+    assert result.returncode == 0, result.stderr
+    assert "stability of synthetic:bunny (sdf field): FINE" in result.stdout
+    for probe in ("sdf.stiffness", "sdf.eikonal", "sdf.sign", "scale.float32", "cameras.inside", "colour.range"):
+        assert probe in result.stdout
+
+
+def test_check_stiff_shell_is_adapted(tmp_path):
+    import json
+
+    out = tmp_path / "stability.json"
+    result = _run("check", "extreme:thin-shell", "--json", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "ADAPTED" in result.stdout and "teacher.num_steps = 1024" in result.stdout
+    data = json.loads(out.read_text())
+    assert data["verdict"] == "adapted" and data["adaptations"]["teacher.num_steps"] == 1024
+    stiff = next(it for it in data["items"] if it["name"] == "density.stiffness")
+    assert stiff["values"]["sigma_delta_max"] > 1e3 and stiff["values"]["steps_needed"] == 1024
+
+
+def test_check_corrupt_checkpoint(tmp_path):
+    bad = tmp_path / "scene.ingp"
+    bad.write_bytes(bytes(range(256)) * 37)
+    result = _run("check", str(bad))
+    _one_line_error(result, "scene.ingp")
+
+
+def test_check_refused_field_exits_2_with_the_reason():
+    result = _run("check", "extreme:flipped-sign")
+    _one_line_error(result, "cannot be distilled: sdf.sign: the SDF is negative outside")
+    assert "REFUSED" in result.stdout
+
+
+def test_check_unknown_sources(tmp_path, capsys):
+    assert main(["check", "extreme:teapot"]) == 2
+    assert main(["check", str(tmp_path / "missing.ingp")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "teapot" in err[0] and "missing.ingp does not exist" in err[1]

@@ -9,17 +9,23 @@ from __future__ import annotations
 
 import time
 
+from .depth_fusion import fused_depth_sdf
 from .cleanup import clean_mesh, decimate, smooth_rough
 from .marching import marching_cubes_field
 from .mesh import MeshData
 from .unwrap import unwrap
 from .visibility import cull_unseen_faces, missed_opaque_fraction
 
+#: Truncation of the fused depth SDF in voxels: beyond the 4-voxel fringe offsets ``marching.outward_levels``
+#: tries, so those levels stay inside the fused values' range.
+FUSION_TRUNCATION_VOXELS = 6.0
+
 
 def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
                  texture_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                  density_level: float | None = None, max_unwrap_faces: int = 200_000,
-                 choose_resolution=None, cull_margin_deg: float = 15.0, field_opacity=None) -> MeshData:
+                 choose_resolution=None, cull_margin_deg: float = 15.0, field_opacity=None,
+                 field_depth=None) -> MeshData:
     """Extract, simplify, cull and unwrap the surface of ``field``.
 
     Args:
@@ -34,6 +40,9 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
             points see (``visibility.cull_unseen_faces``).
         field_opacity: optional (N, H, W) opacity of the field in ``train_cameras``: the iso-level then moves
             outwards until the mesh encloses the field's soft fringe (``marching.marching_cubes_field``).
+        field_depth: optional ((N, H, W) surface depths, (N, H, W) opacities) of the field in ``train_cameras``:
+            a density field whose level set is foam (a trained NeRF's unsupervised interior) is then meshed
+            from these fused depth maps (``depth_fusion.fused_depth_sdf``, ``marching.FOAM_HANDLES``).
         choose_resolution: optional callable (unwrapped MeshData) -> atlas side; the mesh is first unwrapped
             at ``texture_resolution``, then again at the chosen side when it differs (the padding is laid out
             in texels of the final atlas). ``stats['uv_resolution']`` holds the side used.
@@ -54,7 +63,15 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
     if field_opacity is not None:
         def fringe_check(candidate: MeshData) -> float:
             return missed_opaque_fraction(candidate, train_cameras, field_opacity)
-    mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check)
+    fusion = None
+    if field_depth is not None:
+        depths, opacities = field_depth
+
+        def fusion(spec):
+            return fused_depth_sdf(spec.origin, spec.spacing, spec.shape, train_cameras, depths, opacities,
+                                   truncation=FUSION_TRUNCATION_VOXELS * float(spec.spacing.max()))
+    mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check,
+                                depth_fusion=fusion)
     timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling
     n_mc = mesh.num_faces
 

@@ -198,9 +198,31 @@ def outward_levels(kind: str, level: float, voxel: float) -> list[float]:
     return [level / 2.0 ** j for j in range(7)]
 
 
+#: A density level set with more handles than this (genus summed over components) is a trained NeRF's
+#: unsupervised interior, not a shape: the Instant-NGP fixtures have 1,210 (bunny) and ~2,700 (gradient ball),
+#: the synthetic scenes 0-5. Such a field is meshed from its fused depth maps instead (``depth_fusion``).
+FOAM_HANDLES = 100
+
+
+def mesh_handles(mesh: MeshData) -> int:
+    """Handles (genus) summed over the connected components: ``C - chi / 2`` with ``chi = V - E + F``."""
+    from .cleanup import face_components
+
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if faces.shape[0] == 0:
+        return 0
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    e = len(np.unique(edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1]))
+    v = len(np.unique(faces))
+    chi = v - e + faces.shape[0]
+    components = len(np.unique(face_components(faces, mesh.num_vertices)))
+    return int(max(0, round(components - chi / 2)))
+
+
 def marching_cubes_field(field, resolution: int | Sequence[int], level: float | None = None, *,
                          density_step: float | None = None, chunk_points: int = 1 << 20,
-                         fringe_check=None, fringe_tolerance: float = FRINGE_MISS_TOLERANCE) -> MeshData:
+                         fringe_check=None, fringe_tolerance: float = FRINGE_MISS_TOLERANCE,
+                         depth_fusion=None) -> MeshData:
     """Mesh the surface of ``field`` (Field protocol: kind, aabb, geometry) in world coordinates.
 
     Args:
@@ -212,6 +234,9 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
         fringe_check: optional callable (MeshData) -> fraction of the field's opaque pixels the mesh misses;
             the level then moves outwards (:func:`outward_levels`) until it is at most ``fringe_tolerance``
             (or the last candidate is reached; see :func:`_enclose_fringe`).
+        depth_fusion: optional callable (GridSpec) -> ((R0, R1, R2) SDF, stats) fusing the field's depth maps
+            (``depth_fusion.fused_depth_sdf``); a density field whose level set has more than :data:`FOAM_HANDLES`
+            handles is then meshed from it (and its fringe levels are SDF offsets).
 
     Returns:
         MeshData (vertices (V, 3) float32 world, faces (F, 3) int32 CCW from outside) with ``stats``: grid
@@ -240,6 +265,14 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
             stats["mc_level_rule"] = f"min(ln2/step, 0.5*max) with step={step:.6g}"
     t0 = time.perf_counter()
     mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, float(level))
+    if depth_fusion is not None and kind == "density":
+        handles = mesh_handles(mesh)
+        stats["mc_density_handles"] = handles
+        if handles > FOAM_HANDLES:
+            grid, fused_stats = depth_fusion(spec)
+            kind, level = "sdf", 0.0
+            mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, level)
+            stats.update(fused_stats, mc_surface_from="fused depth maps", mc_handles=mesh_handles(mesh))
     if fringe_check is not None:
         mesh, level = _enclose_fringe(grid, spec, kind, float(level), mesh, fringe_check, fringe_tolerance, stats)
     stats.update(mesh.stats, mc_folded_fraction=folded_fraction(mesh.vertices, mesh.faces))
@@ -280,4 +313,4 @@ def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, 
     return mesh, levels[index]
 
 
-__all__ = ["marching_cubes_field", "outward_levels", "marching_cubes_grid", "fill_cavities", "folded_fraction", "density_level", "nudge_level", "signed_volume"]
+__all__ = ["marching_cubes_field", "mesh_handles", "FOAM_HANDLES", "outward_levels", "marching_cubes_grid", "fill_cavities", "folded_fraction", "density_level", "nudge_level", "signed_volume"]

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import time
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.ndimage import uniform_filter
 
@@ -20,26 +22,37 @@ from .. import metrics
 from ..render.cameras import Cameras
 
 
+@dataclass
+class FieldRenders:
+    """The field's renders of a camera set: ``images`` (H, W, 3), ``opacities`` (H, W), ``surface_depths``
+    (H, W) (distance along the unit ray where the opacity reaches 0.5, 0 where it never does) per view, and
+    ``seconds`` per frame."""
+
+    images: list[np.ndarray]
+    opacities: list[np.ndarray]
+    surface_depths: list[np.ndarray]
+    seconds: list[float]
+
+
 def render_field_timed(renderer, cameras: Cameras, progress=None) -> tuple[list[np.ndarray], list[float]]:
     """Volume-render every camera; returns images (H,W,3) and seconds per frame."""
-    images, _, seconds = render_field_views(renderer, cameras, progress)
-    return images, seconds
+    renders = render_field_views(renderer, cameras, progress)
+    return renders.images, renders.seconds
 
 
-def render_field_views(renderer, cameras: Cameras,
-                       progress=None) -> tuple[list[np.ndarray], list[np.ndarray], list[float]]:
-    """Volume-render every camera; returns images (H,W,3), the field's opacities (H,W) and seconds per
-    frame."""
-    images, opacities, seconds = [], [], []
+def render_field_views(renderer, cameras: Cameras, progress=None) -> FieldRenders:
+    """Volume-render every camera (timed, one frame at a time)."""
+    renders = FieldRenders([], [], [], [])
     for i in range(len(cameras)):
         t0 = time.perf_counter()
         out = renderer.render(cameras, i)
-        seconds.append(time.perf_counter() - t0)
-        images.append(out["rgb"])
-        opacities.append(out["opacity"])
+        renders.seconds.append(time.perf_counter() - t0)
+        renders.images.append(out["rgb"])
+        renders.opacities.append(out["opacity"])
+        renders.surface_depths.append(out["surface_depth"])
         if progress is not None:
             progress(i + 1, len(cameras))
-    return images, opacities, seconds
+    return renders
 
 
 def compare(bundle_images: list[np.ndarray], field_images: list[np.ndarray]) -> dict:

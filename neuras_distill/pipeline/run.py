@@ -294,10 +294,9 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     stages.start("teacher", f"volume-rendering {len(train)} training views at {train.width}x{train.height}, "
                             f"{cfg.teacher.num_steps} steps/ray")
     teacher = VolumeRenderer(field, num_steps=cfg.teacher.num_steps)
-    train_images, train_opacities, _ = evaluate.render_field_views(teacher, train,
-                                                                   _progress_printer(log, "teacher", progress))
-    targets = np.stack(train_images).astype(np.float32)
-    train_opacity = np.stack(train_opacities)
+    teacher_views = evaluate.render_field_views(teacher, train, _progress_printer(log, "teacher", progress))
+    targets = np.stack(teacher_views.images).astype(np.float32)
+    train_opacity = np.stack(teacher_views.opacities)
     require(bool(np.isfinite(targets).all()), "the field renders NaN or Inf colours; check its parameters")
     teacher_seconds = stages.done(views=len(train))
     plan = _training_budget(cfg, teacher_seconds, train, test, field)
@@ -323,7 +322,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                         density_level=getattr(field, "surface_level", None),
                         choose_resolution=by_texel_density if auto_res else None,
                         cull_margin_deg=cfg.geometry.cull_margin_deg,
-                        field_opacity=train_opacity if enclose else None)
+                        field_opacity=train_opacity if enclose else None,
+                        field_depth=(np.stack(teacher_views.surface_depths), train_opacity))
     tex_res = int(mesh.stats["uv_resolution"])
     charts = int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
@@ -411,8 +411,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
 
     # 7. evaluate -----------------------------------------------------------------------------------
     stages.start("evaluate", f"{len(test)} held-out views at {test.width}x{test.height}: field vs bundle")
-    field_images, field_opacities, field_seconds = evaluate.render_field_views(
-        teacher, test, _progress_printer(log, "field (held-out)", progress))
+    held_out = evaluate.render_field_views(teacher, test, _progress_printer(log, "field (held-out)", progress))
+    field_images, field_opacities, field_seconds = held_out.images, held_out.opacities, held_out.seconds
     player = BundleRenderer(bundle)
     bundle_images = [player.render(test, i) for i in range(len(test))]
     quality = evaluate.compare(bundle_images, field_images)

@@ -33,10 +33,17 @@ def alpha_from_density(sigma: torch.Tensor, deltas: torch.Tensor) -> torch.Tenso
     return -torch.expm1(-optical_depth(sigma, deltas))
 
 
+def exclusive_cumsum(tau: torch.Tensor) -> torch.Tensor:
+    """(..., S) ``sum_{j<i} tau_j`` as a shifted cumulative sum. Not ``cumsum(tau) - tau``: in float32 that
+    cancels the prefix when one tau is ~2^24 times it (a stiff sample after thin fog), so the transmittance
+    jumped back to 1 and the weights summed to 1.095 (tests/stability/test_teacher.py)."""
+    zero = torch.zeros_like(tau[..., :1])
+    return torch.cat([zero, torch.cumsum(tau[..., :-1], dim=-1)], dim=-1)
+
+
 def transmittance_from_density(sigma: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
     """(..., S) exclusive transmittance ``exp(-sum_{j<i} tau_j)`` (log space, T_0 = 1)."""
-    tau = optical_depth(sigma, deltas)
-    return torch.exp(-(torch.cumsum(tau, dim=-1) - tau))
+    return torch.exp(-exclusive_cumsum(optical_depth(sigma, deltas)))
 
 
 def alpha_from_sdf(sdf_prev: torch.Tensor, sdf_next: torch.Tensor, inv_s) -> torch.Tensor:
@@ -49,9 +56,12 @@ def alpha_from_sdf(sdf_prev: torch.Tensor, sdf_next: torch.Tensor, inv_s) -> tor
     (tests/test_sdf_opacity.py). ``inv_s`` (the paper's s) is a float or a tensor broadcastable to the inputs.
     """
     s = torch.as_tensor(inv_s, dtype=torch.float32)
-    f_next = sdf_next.float()
-    drop = (sdf_prev.float() - f_next).clamp(min=0.0)
-    return (-torch.expm1(-s * drop) * torch.sigmoid(-s * f_next)).clamp(0.0, 1.0)
+    f_prev, f_next = sdf_prev.float(), sdf_next.float()
+    ok = torch.isfinite(f_prev) & torch.isfinite(f_next)     # an interval with a NaN/Inf end is empty
+    f_prev, f_next = torch.where(ok, f_prev, 0.0), torch.where(ok, f_next, 0.0)
+    drop = (f_prev - f_next).clamp(min=0.0)
+    alpha = (-torch.expm1(-s * drop) * torch.sigmoid(-s * f_next)).clamp(0.0, 1.0)
+    return torch.where(ok, alpha, 0.0)
 
 
 def transmittance_from_alpha(alpha: torch.Tensor) -> torch.Tensor:
@@ -70,7 +80,7 @@ def weights_from_density(sigma: torch.Tensor, deltas: torch.Tensor) -> tuple[tor
     """(weights (..., S), exclusive transmittance (..., S)) for densities ``sigma`` and step lengths."""
     tau = optical_depth(sigma, deltas)
     alpha = -torch.expm1(-tau)
-    trans = torch.exp(-(torch.cumsum(tau, dim=-1) - tau))
+    trans = torch.exp(-exclusive_cumsum(tau))
     return alpha * trans, trans
 
 

@@ -19,7 +19,9 @@ midpoint. The background (``field.background(d)``, else ``field.background_color
 composited behind: ``rgb = Σ w c + (1 − Σ w) · bg``.
 
 Outputs per pixel: ``rgb`` in [0, 1]; ``opacity`` = Σ w; ``depth`` = Σ w t / Σ w, the expected distance
-along the (unit) ray from the camera centre, not the camera-space z (0 where opacity is 0).
+along the (unit) ray from the camera centre, not the camera-space z (0 where opacity is 0);
+``surface_depth`` = the distance at which the accumulated opacity reaches 0.5 (linear within the step; 0 where
+it never does): the visible surface, where the expected depth of a soft fringe lies deeper.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import numpy as np
 import torch
 
 from ..errors import require
-from .compositing import alpha_from_sdf, optical_depth, transmittance_from_alpha
+from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth, transmittance_from_alpha
 from .occupancy import OccupancyGrid, default_inv_s
 from .rays import ray_aabb
 
@@ -99,13 +101,13 @@ class VolumeRenderer:
     def render_rays(self, origins: torch.Tensor, dirs: torch.Tensor) -> dict[str, torch.Tensor]:
         """Render rays: origins (N, 3), unit directions of travel (N, 3), world frame.
 
-        Returns ``{"rgb": (N, 3), "depth": (N,), "opacity": (N,)}`` float32 tensors.
+        Returns ``{"rgb": (N, 3), "depth": (N,), "surface_depth": (N,), "opacity": (N,)}`` float32 tensors.
         """
         origins = origins.reshape(-1, 3).float()
         dirs = dirs.reshape(-1, 3).float()
         outs = [self._render_chunk(origins[i:i + self.chunk], dirs[i:i + self.chunk])
                 for i in range(0, origins.shape[0], self.chunk)]
-        return {k: torch.cat([o[k] for o in outs], dim=0) for k in ("rgb", "depth", "opacity")}
+        return {k: torch.cat([o[k] for o in outs], dim=0) for k in ("rgb", "depth", "surface_depth", "opacity")}
 
     def _render_chunk(self, origins: torch.Tensor, dirs: torch.Tensor) -> dict[str, torch.Tensor]:
         n_rays = origins.shape[0]
@@ -113,6 +115,7 @@ class VolumeRenderer:
         out_rgb = torch.zeros(n_rays, 3)
         out_wt = torch.zeros(n_rays)
         out_w = torch.zeros(n_rays)
+        out_half = torch.zeros(n_rays)
         t_near, t_far, hit = ray_aabb(origins, dirs, self.aabb)
         ids = torch.nonzero(hit).flatten()
         if ids.numel():
@@ -124,11 +127,13 @@ class VolumeRenderer:
             acc_rgb = torch.zeros(ids.numel(), 3)
             acc_wt = torch.zeros(ids.numel())
             acc_w = torch.zeros(ids.numel())
+            acc_half = torch.zeros(ids.numel())
             trans = torch.ones(ids.numel())
             ks = torch.arange(self.segment, dtype=torch.float32)
             k0 = 0
             while ids.numel():
-                trans = self._march_segment(k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w)
+                trans = self._march_segment(k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w,
+                                            acc_half)
                 k0 += self.segment
                 keep = (trans > self.early_stop) & (n_steps > k0)
                 if bool(keep.all()):
@@ -137,15 +142,19 @@ class VolumeRenderer:
                 out_rgb[ids[done]] = acc_rgb[done]
                 out_wt[ids[done]] = acc_wt[done]
                 out_w[ids[done]] = acc_w[done]
-                ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w = (
-                    v[keep] for v in (ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w))
+                out_half[ids[done]] = acc_half[done]
+                ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w, acc_half = (
+                    v[keep] for v in (ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w, acc_half))
         depth = torch.where(out_w > 0, out_wt / out_w.clamp(min=1e-12), torch.zeros_like(out_w))
         rgb = out_rgb + (1.0 - out_w).clamp(min=0.0)[:, None] * self.background(dirs)
-        return {"rgb": rgb.clamp(0.0, 1.0), "depth": depth, "opacity": out_w.clamp(0.0, 1.0)}
+        return {"rgb": rgb.clamp(0.0, 1.0), "depth": depth, "surface_depth": out_half,
+                "opacity": out_w.clamp(0.0, 1.0)}
 
-    def _march_segment(self, k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w) -> torch.Tensor:
+    def _march_segment(self, k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w,
+                       acc_half) -> torch.Tensor:
         """Advance the live rays by steps k0 .. k0 + segment - 1; updates the accumulators in place and
-        returns the transmittance after the segment. All inputs are per live ray (A, ...)."""
+        returns the transmittance after the segment. All inputs are per live ray (A, ...); ``acc_half`` holds
+        the distance where the accumulated opacity reached 0.5 (0 until it does)."""
         k = k0 + ks  # (K,)
         n_k = k.shape[0]
         valid = k[None, :] < n_steps[:, None]  # (A, K)
@@ -163,9 +172,8 @@ class VolumeRenderer:
             sigma[flat] = self.field.geometry(pts).reshape(-1).float()
             tau = optical_depth(sigma.reshape(n_live, n_k), dt[:, None])
             alpha = -torch.expm1(-tau)
-            csum = torch.cumsum(tau, dim=-1)
-            t_seg = trans[:, None] * torch.exp(-(csum - tau))
-            trans_after = trans * torch.exp(-csum[:, -1])
+            t_seg = trans[:, None] * torch.exp(-exclusive_cumsum(tau))
+            trans_after = trans * torch.exp(-tau.sum(-1))
         else:
             ends = torch.zeros(n_live, n_k + 1, dtype=torch.bool)
             ends[:, :-1] |= occ
@@ -183,6 +191,13 @@ class VolumeRenderer:
             t_seg = trans[:, None] * transmittance_from_alpha(alpha)
             trans_after = t_seg[:, -1] * (1.0 - alpha[:, -1])
         w = t_seg * alpha  # (A, K)
+        after = acc_w[:, None] + torch.cumsum(w, dim=-1)              # accumulated opacity after each step
+        crossing = (after >= 0.5) & (after - w < 0.5)
+        rows_x, cols_x = torch.nonzero(crossing, as_tuple=True)
+        if rows_x.numel():
+            before = (after - w)[rows_x, cols_x]
+            frac = ((0.5 - before) / w[rows_x, cols_x].clamp(min=1e-12)).clamp(0.0, 1.0)
+            acc_half[rows_x] = t_mid[rows_x, cols_x] + (frac - 0.5) * dt[rows_x]
         acc_w += w.sum(-1)
         acc_wt += (w * t_mid).sum(-1)
         sflat = torch.nonzero((w > self.min_weight).reshape(-1)).flatten()
@@ -191,20 +206,22 @@ class VolumeRenderer:
             self.stats["radiance_points"] += rows.numel()
             dirs = d[rows]
             x = torch.addcmul(o[rows], t_mid.reshape(-1)[sflat][:, None], dirs)
-            c = self.field.radiance(x, dirs).float().reshape(-1, 3)
+            c = torch.nan_to_num(self.field.radiance(x, dirs).float().reshape(-1, 3), nan=0.0, posinf=1.0,
+                                 neginf=0.0)                          # a NaN colour sample counts as black
             acc_rgb.index_add_(0, rows, w.reshape(-1)[sflat][:, None] * c)
         return trans_after
 
     # ------------------------------------------------------------------ cameras
     @torch.no_grad()
     def render(self, cameras, index: int) -> dict[str, np.ndarray]:
-        """Render camera ``index``: ``{"rgb": (H, W, 3), "depth": (H, W), "opacity": (H, W)}`` float32 numpy,
+        """Render camera ``index``: ``{"rgb": (H, W, 3), "depth", "surface_depth", "opacity": (H, W)}`` float32 numpy,
         top row first; rgb in [0, 1] with the background composited."""
         origins, dirs = cameras.rays(index)
         h, w = cameras.height, cameras.width
         out = self.render_rays(origins.reshape(-1, 3), dirs.reshape(-1, 3))
         return {"rgb": out["rgb"].reshape(h, w, 3).numpy().astype(np.float32),
                 "depth": out["depth"].reshape(h, w).numpy().astype(np.float32),
+                "surface_depth": out["surface_depth"].reshape(h, w).numpy().astype(np.float32),
                 "opacity": out["opacity"].reshape(h, w).numpy().astype(np.float32)}
 
     def time_frames(self, cameras, indices=None) -> dict[str, float]:

@@ -1,0 +1,98 @@
+"""A surface for a density field from its own depth maps: a truncated signed distance fused over the views.
+
+A trained NeRF is supervised only where rays end: behind its opaque surface the density is whatever the
+optimiser left there, and marching cubes turns that into tunnels, pockets and handles. On the Instant-NGP
+gradient-ball snapshot the level set had 951,002 faces, the largest component of genus ~2,700 with 3.8x the
+sphere's area; xatlas could not unwrap it in 2 x 120 s. Fusing the views' surface depths (where each pixel's
+opacity reaches 0.5) the way RGB-D scans are fused (a truncated signed distance averaged over views) gives
+the surface the cameras saw and nothing behind it: 333k faces, area within 1.3x, 0.7% folded faces.
+Lattice points more than the truncation behind the surface in some view and seen in front of it by none
+are inside; points no camera sees are outside.
+
+Frames: world coordinates; cameras are OpenGL (x right, y up, -z forward) with unit ray directions, so the
+volume renderer's depths are Euclidean distances from the camera centre.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy import ndimage
+
+def _max_depth_window(depth: np.ndarray, opacity: np.ndarray, opaque: float, radius: int) -> np.ndarray:
+    """(H, W) largest expected depth over the (2r+1)^2 window; +inf where any pixel of it is not opaque."""
+    d = np.where(opacity > opaque, depth, np.inf).astype(np.float64)
+    d[~np.isfinite(d)] = np.inf
+    return ndimage.maximum_filter(d, size=2 * radius + 1, mode="nearest")
+
+
+def fused_depth_sdf(origin, spacing, shape, cameras, depths: np.ndarray, opacities: np.ndarray, *,
+                    truncation: float, opaque: float = 0.5, chunk: int = 1 << 20) -> tuple[np.ndarray, dict]:
+    """A truncated signed distance (positive outside, world units) fused from the field's depth maps.
+
+    Per view a lattice point ``x`` projecting onto pixel p gets ``clamp(depth(p) - |x - c|, -t, t)``
+    (``t = truncation``) with weight 1 when p is opaque and ``|x - c| < depth(p) + t``; ``+t`` (free space)
+    when p is not opaque; nothing when it lies more than ``t`` behind the surface (it is then marked
+    "behind"). The fused value is the weighted mean; points with no weight are
+    ``-t`` when behind in some view (hidden interior) and ``+t`` otherwise (seen by no camera).
+
+    Args:
+        origin: (3,) world position of lattice point (0, 0, 0); spacing: (3,) voxel size; shape: (R0, R1, R2).
+        cameras: ``Cameras`` of the views (N); depths, opacities: (N, H, W) the field's expected depth
+            (distance along the unit ray) and opacity.
+    Returns:
+        ((R0, R1, R2) float32 SDF, stats {"fused_views", "fused_weighted_fraction", "fused_hidden_fraction"}).
+    """
+    origin = np.asarray(origin, dtype=np.float64)
+    spacing = np.asarray(spacing, dtype=np.float64)
+    shape = tuple(int(s) for s in shape)
+    total = int(np.prod(shape))
+    acc = np.zeros(total, dtype=np.float64)
+    weight = np.zeros(total, dtype=np.float32)
+    behind = np.zeros(total, dtype=bool)
+    axes = [origin[k] + spacing[k] * np.arange(shape[k]) for k in range(3)]
+    h, w = cameras.height, cameras.width
+    t = float(truncation)
+    for i in range(len(cameras)):
+        own = torch.from_numpy(_max_depth_window(depths[i], opacities[i], opaque, 0).reshape(-1))
+        for sel_np, pixel, dist in _projections(cameras, i, axes, shape, total, chunk):
+            d = own[pixel]
+            sd = d - dist                                     # +inf on background pixels
+            near = sd > -t
+            acc[sel_np[near.numpy()]] += sd[near].clamp(-t, t).numpy()
+            weight[sel_np[near.numpy()]] += 1.0
+            behind[sel_np[(~near).numpy()]] = True
+    sdf = np.where(weight > 0, acc / np.maximum(weight, 1.0), np.where(behind, -t, t)).astype(np.float32)
+    stats = {"fused_views": len(cameras), "fused_weighted_fraction": float((weight > 0).mean()),
+             "fused_hidden_fraction": float(((weight == 0) & behind).mean())}
+    return sdf.reshape(shape), stats
+
+
+def _projections(cameras, i: int, axes, shape, total: int, chunk: int):
+    """Yield (lattice indices (M,), pixel indices (M,) long tensor, distances to the camera (M,) float64
+    tensor) for the lattice points camera ``i`` sees inside its image, chunk by chunk."""
+    c2w = cameras.c2w[i].double().numpy()
+    rot_t = torch.from_numpy(c2w[:3, :3].copy())          # row vectors: x_cam = (x - c) @ R
+    centre_t = torch.from_numpy(c2w[:3, 3].copy())
+    fx, fy = float(cameras.fx[i]), float(cameras.fy[i])
+    cx, cy = float(cameras.cx[i]), float(cameras.cy[i])
+    h, w = cameras.height, cameras.width
+    for start in range(0, total, chunk):
+        idx = np.arange(start, min(start + chunk, total))
+        i0, rest = np.divmod(idx, shape[1] * shape[2])
+        i1, i2 = np.divmod(rest, shape[2])
+        rel = torch.from_numpy(np.stack([axes[0][i0], axes[1][i1], axes[2][i2]], axis=1)) - centre_t
+        cam = rel @ rot_t                                  # camera frame: -z forward
+        z = -cam[:, 2]
+        ahead = z > 1e-9
+        zs = torch.where(ahead, z, torch.ones_like(z))
+        u = torch.round(fx * cam[:, 0] / zs + cx - 0.5).long()
+        v = torch.round(cy - fy * cam[:, 1] / zs - 0.5).long()
+        inside = ahead & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        if not bool(inside.any()):
+            continue
+        sel = torch.nonzero(inside).flatten()
+        yield idx[sel.numpy()], v[sel] * w + u[sel], rel[sel].norm(dim=1)
+
+
+__all__ = ["fused_depth_sdf"]

@@ -1,0 +1,95 @@
+"""Meshing a trained NeRF's surface from its depth maps (geometry/depth_fusion.py) instead of a density level
+set full of unsupervised interior foam."""
+
+import numpy as np
+import torch
+
+from neuras_distill.geometry.depth_fusion import fused_depth_sdf
+from neuras_distill.geometry.grid import grid_spec, sample_grid
+from neuras_distill.geometry.marching import FOAM_HANDLES, marching_cubes_field, marching_cubes_grid, mesh_handles
+from neuras_distill.render.cameras import Cameras
+from neuras_distill.render.volume import VolumeRenderer
+
+RADIUS = 0.3
+
+
+class FoamBall:
+    """A density ball whose 0.03-thick crust is what cameras see; inside, a gyroid labyrinth crosses the
+    level everywhere and reaches the crust (what a NeRF leaves where no ray was supervised)."""
+
+    kind = "density"
+    aabb = torch.tensor([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]])
+
+    def geometry(self, x):
+        r = x.norm(dim=-1)
+        a = 40.0 * x
+        gyroid = (torch.sin(a[:, 0]) * torch.cos(a[:, 1]) + torch.sin(a[:, 1]) * torch.cos(a[:, 2])
+                  + torch.sin(a[:, 2]) * torch.cos(a[:, 0]))
+        crust = 400.0 * ((r > RADIUS - 0.03) & (r < RADIUS) & (gyroid > -1.2)).float()    # with pores
+        foam = 200.0 * (gyroid > 0).float()
+        return torch.where(r < RADIUS - 0.02, foam, crust)
+
+    def radiance(self, x, d):
+        return torch.full_like(x, 0.5)
+
+
+def _views(field, n=12, size=48):
+    cams = Cameras.orbit((0, 0, 0), 1.6, n, width=size, height=size, fov_deg=40.0, elevation_deg=(-40.0, 50.0))
+    teacher = VolumeRenderer(field, num_steps=192)
+    outs = [teacher.render(cams, i) for i in range(len(cams))]
+    return cams, np.stack([o["surface_depth"] for o in outs]), np.stack([o["opacity"] for o in outs])
+
+
+def test_surface_depth_is_where_opacity_reaches_half():
+    cams, depth, opacity = _views(FoamBall(), n=1, size=16)
+    centre = depth[0, 8, 8]
+    # the crust's optical depth is 12: opacity 0.5 is reached ln2/400 past the entry point; the march resolves
+    # it to about a step (the box diagonal / 192)
+    assert abs(centre - (1.6 - RADIUS + np.log(2) / 400.0)) < 1.5 * np.sqrt(3.0) / 192
+    assert (depth[opacity < 0.5] == 0).all()
+
+
+def test_fused_depth_meshes_the_seen_surface_without_the_interior_foam():
+    field = FoamBall()
+    foam = marching_cubes_field(field, 48)
+    assert mesh_handles(foam) > FOAM_HANDLES                                  # the level set is foam
+    inner = np.linalg.norm(foam.vertices, axis=1) < RADIUS - 0.06
+    assert inner.mean() > 0.3
+
+    cams, depth, opacity = _views(field)
+    spec = grid_spec(field.aabb, 48)
+    sdf, stats = fused_depth_sdf(spec.origin, spec.spacing, spec.shape, cams, depth, opacity,
+                                 truncation=6 * float(spec.spacing.max()))
+    mesh = marching_cubes_grid(sdf, spec.origin, spec.spacing, "sdf", 0.0)
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    assert mesh_handles(mesh) == 0
+    assert abs(np.median(r) - RADIUS) < 0.5 * float(spec.spacing.max())
+    assert np.percentile(r, 1) > RADIUS - 2 * float(spec.spacing.max())        # nothing inside but pores
+    assert stats["fused_hidden_fraction"] > 0.01                               # the core, deeper than the truncation
+
+
+def test_foam_switches_marching_cubes_to_the_fused_surface():
+    field = FoamBall()
+    cams, depth, opacity = _views(field)
+
+    def fusion(spec):
+        return fused_depth_sdf(spec.origin, spec.spacing, spec.shape, cams, depth, opacity,
+                               truncation=6 * float(spec.spacing.max()))
+
+    mesh = marching_cubes_field(field, 64, depth_fusion=fusion)
+    assert mesh.stats["mc_density_handles"] > FOAM_HANDLES
+    assert mesh.stats["mc_surface_from"] == "fused depth maps"
+    assert mesh.stats["mc_handles"] == 0
+    assert abs(np.median(np.linalg.norm(mesh.vertices, axis=1)) - RADIUS) < 0.01
+
+
+def test_a_clean_level_set_stays_a_level_set():
+    from neuras_distill.fields.analytic import SphereSDF
+
+    field = SphereSDF(radius=RADIUS).density()
+
+    def fusion(spec):
+        raise AssertionError("a clean level set must not be fused")
+
+    mesh = marching_cubes_field(field, 48, depth_fusion=fusion)
+    assert mesh.stats["mc_density_handles"] == 0 and "mc_surface_from" not in mesh.stats
