@@ -6,7 +6,9 @@ import torch
 
 from neuras_distill.geometry.depth_fusion import fused_depth_sdf
 from neuras_distill.geometry.grid import grid_spec, sample_grid
-from neuras_distill.geometry.marching import FOAM_HANDLES, marching_cubes_field, marching_cubes_grid, mesh_handles
+from neuras_distill.geometry.marching import marching_cubes_field, marching_cubes_grid, mesh_handles
+
+FOAM_HANDLES = 100          # the foam ball's level set has far more
 from neuras_distill.render.cameras import Cameras
 from neuras_distill.render.volume import VolumeRenderer
 
@@ -36,7 +38,7 @@ class FoamBall:
 def _views(field, n=12, size=48):
     cams = Cameras.orbit((0, 0, 0), 1.6, n, width=size, height=size, fov_deg=40.0, elevation_deg=(-40.0, 50.0))
     teacher = VolumeRenderer(field, num_steps=192)
-    outs = [teacher.render(cams, i) for i in range(len(cams))]
+    outs = [teacher.render(cams, i, crossings=True) for i in range(len(cams))]
     return cams, np.stack([o["surface_depth"] for o in outs]), np.stack([o["opacity"] for o in outs])
 
 
@@ -68,28 +70,53 @@ def test_fused_depth_meshes_the_seen_surface_without_the_interior_foam():
     assert stats["fused_hidden_fraction"] > 0.01                               # the core, deeper than the truncation
 
 
-def test_foam_switches_marching_cubes_to_the_fused_surface():
+def test_marching_cubes_meshes_the_fused_surface_when_asked():
     field = FoamBall()
     cams, depth, opacity = _views(field)
 
-    def fusion(spec):
+    def fusion(spec, fringe=False):
         return fused_depth_sdf(spec.origin, spec.spacing, spec.shape, cams, depth, opacity,
                                truncation=6 * float(spec.spacing.max()))
 
     mesh = marching_cubes_field(field, 64, depth_fusion=fusion)
-    assert mesh.stats["mc_density_handles"] > FOAM_HANDLES
+    assert mesh.stats["mc_density_handles"] > FOAM_HANDLES                  # what the level set would have been
     assert mesh.stats["mc_surface_from"] == "fused depth maps"
     assert mesh.stats["mc_handles"] == 0
     assert abs(np.median(np.linalg.norm(mesh.vertices, axis=1)) - RADIUS) < 0.01
 
 
-def test_a_clean_level_set_stays_a_level_set():
+def _extract(field, monkeypatch, fail_first_unwrap: bool):
+    from neuras_distill.geometry import extract
+    from neuras_distill.geometry.unwrap import UnwrapFailed
+
+    cams, depth, opacity = _views(field, n=8, size=32)
+    calls = []
+    real = extract.unwrap
+
+    def unwrap(mesh, **kw):
+        calls.append(mesh.num_faces)
+        if fail_first_unwrap and len(calls) == 1:
+            raise UnwrapFailed("UV unwrap timed out on the level set (simulated)")
+        return real(mesh, **kw)
+
+    monkeypatch.setattr(extract, "unwrap", unwrap)
+    mesh = extract.extract_mesh(field, cams, grid_resolution=48, face_budget=2000, texture_resolution=128,
+                                field_depth=(depth, depth, opacity), unwrap_timeout_s=60)
+    return mesh, calls
+
+
+def test_a_level_set_that_unwraps_is_kept(monkeypatch):
     from neuras_distill.fields.analytic import SphereSDF
 
-    field = SphereSDF(radius=RADIUS).density()
+    mesh, calls = _extract(SphereSDF(radius=RADIUS).density(), monkeypatch, fail_first_unwrap=False)
+    assert len(calls) == 1 and "mc_surface_from" not in mesh.stats
+    assert mesh.stats["mc_density_handles"] == 0
 
-    def fusion(spec):
-        raise AssertionError("a clean level set must not be fused")
 
-    mesh = marching_cubes_field(field, 48, depth_fusion=fusion)
-    assert mesh.stats["mc_density_handles"] == 0 and "mc_surface_from" not in mesh.stats
+def test_a_level_set_xatlas_cannot_unwrap_is_meshed_from_the_depth_maps(monkeypatch):
+    mesh, calls = _extract(FoamBall(), monkeypatch, fail_first_unwrap=True)
+    assert len(calls) == 2
+    assert mesh.stats["mc_surface_from"] == "fused depth maps"
+    assert "simulated" in mesh.stats["level_set_unwrap_failure"]
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    assert np.percentile(r, 5) > RADIUS - 0.05 and mesh.uvs is not None

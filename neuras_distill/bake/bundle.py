@@ -2,13 +2,16 @@
 
 Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature_nbytes`. On disk::
 
-    manifest.json        format, sizes, model settings, sha256 of every other file
+    manifest.json        format, sizes, model settings, sha256 of every other file; ``core_faces``: null for a
+                         single-layer mesh, else the number of core faces (faces[:core_faces] the core,
+                         the rest the shell; see ``MeshData.core_faces``); a missing key reads as null
     mesh.npz             float32 vertices (V,3), float32 uvs (V,2), int32 faces (F,3)
     feature_index.png    16-bit grayscale PNG of the (H, W) code indices (row 0 = v = 0, i.e. the image
                          looks upside down in a viewer), lossless
     codebook.npy         float32 (K, ceil(D/4), 4), zero padded
     shader.frag          the generated fragment shader
-    shader.vert          only when the bundle carries a vertex shader
+    shader.vert          only when the bundle carries a vertex shader (``playback.shaders.VERTEX_SHADER``: a
+                         two-layer mesh is drawn core then shell with its uniform ``u_layer`` = 0 / 1)
     sky_index.png        only with skyboxes: 16-bit PNG of the skybox atlas's code indices
     sky_codebook.npy     only with skyboxes: float32 (K_sky, ceil(D/4), 4)
     sky.frag             only with skyboxes: the skybox pass's fragment shader (``bake/glsl_sky.py``)
@@ -20,6 +23,9 @@ Precision: mesh vertices are stored relative to ``manifest["origin"]`` (float64 
 centre, [0, 0, 0] for bundles baked without one); the renderer subtracts it from camera positions in float64,
 so a scene kilometres from its world origin plays with float32 precision around its own centre. The skybox
 layers (``manifest["skybox"]``) carry their own float64 centre.
+
+Versions: a single-layer bundle is written as format version 2, a two-layer one (``core_faces`` set) as 3, so a
+reader that predates the layers refuses it instead of letting the shell hide the core; both are read here.
 """
 
 from __future__ import annotations
@@ -39,7 +45,8 @@ from neuras_distill.geometry.mesh import MeshData
 
 FORMAT = "neuras-bundle"
 FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+TWO_LAYER_FORMAT_VERSION = 3            # written only for a two-layer mesh (manifest ``core_faces`` not null)
+READABLE_VERSIONS = (1, 2, 3)
 MAX_CODES = 65535
 FILES = ("manifest.json", "mesh.npz", "feature_index.png", "codebook.npy", "shader.frag")
 SKY_FILES = ("sky_index.png", "sky_codebook.npy", "sky.frag")
@@ -55,7 +62,7 @@ class Bundle:
     """A baked, playable result.
 
     Attributes:
-        mesh: MeshData with uvs.
+        mesh: MeshData with uvs; its ``core_faces`` (None: one layer) is what the manifest's ``core_faces`` records.
         textures: {"u_index": uint16 (H, W), "u_codebook": float32 (K, C4, 4)}.
         fragment_shader: GLSL 330 source (``bake/glsl.py``).
         background_color: (3,) float32 clear colour.
@@ -106,8 +113,10 @@ class Bundle:
             np.save(buf, np.ascontiguousarray(self.textures["u_sky_codebook"], dtype=np.float32), allow_pickle=False)
             files["sky_codebook.npy"] = buf.getvalue()
             files["sky.frag"] = self.sky_fragment_shader.encode("utf-8")
+        core_faces = _core_faces(m.core_faces, m.num_faces, "the mesh")
         manifest = dict(self.manifest)
-        manifest.update(format=FORMAT, format_version=FORMAT_VERSION,
+        manifest.update(format=FORMAT, format_version=FORMAT_VERSION if core_faces is None else TWO_LAYER_FORMAT_VERSION,
+                        core_faces=core_faces,
                         background_color=[float(x) for x in self.background_color],
                         files={k: {"bytes": len(v), "sha256": hashlib.sha256(v).hexdigest()} for k, v in files.items()})
         files["manifest.json"] = json.dumps(manifest, indent=2, sort_keys=True).encode("utf-8")
@@ -135,6 +144,16 @@ class Bundle:
         """Bytes the same atlas would take unquantized in float16 (H * W * D * 2), for the compression ratio."""
         h, w = self.textures["u_index"].shape
         return float16_feature_nbytes(h, w, int(self.manifest.get("feature_dim", 4 * self.textures["u_codebook"].shape[1])))
+
+
+def _core_faces(value, num_faces: int, where: str) -> int | None:
+    """``value`` as None or an int in [0, num_faces], or BadInputError naming ``where``."""
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or not 0 <= int(value) <= num_faces:
+        raise BadInputError(f"{where}: core_faces must be null or an integer in [0, {num_faces}], got {value!r}")
+    return int(value)
 
 
 def _encode_png16(index: np.ndarray) -> bytes:
@@ -184,6 +203,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
     """
     if mesh.uvs is None:
         raise BadInputError("bake: the mesh has no UVs; unwrap it before baking")
+    core_faces = _core_faces(mesh.core_faces, mesh.num_faces, "bake")
     index, cb = _baked_textures(model)
     k, dim = cb.shape[0], int(model.feature_dim)
     textures = {"u_index": index, "u_codebook": cb}
@@ -195,6 +215,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
         "use_facing": bool(model.use_facing),
         "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
         "mesh_vertices": int(mesh.num_vertices), "mesh_faces": int(mesh.num_faces),
+        "core_faces": core_faces,
         "float16_feature_bytes": float16_feature_nbytes(model.tex_height, model.tex_width, dim),
         "origin": [float(x) for x in (np.zeros(3) if origin is None else np.asarray(origin, np.float64).reshape(3))],
     }
@@ -210,7 +231,9 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
                                   mlp_hidden=int(skybox.shader.hidden), atlas_size=[sky_h, sky_w],
                                   float16_feature_bytes=float16_feature_nbytes(sky_h, sky_w, skybox.feature_dim))
     manifest.update(extra_manifest or {})
-    return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs), textures=textures,
+    manifest["core_faces"] = core_faces                 # the mesh's, whatever extra_manifest says
+    return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs, core_faces=core_faces),
+                  textures=textures,
                   fragment_shader=generate_fragment_shader(model), background_color=background_color,
                   manifest=manifest, vertex_shader=vertex_shader, sky_fragment_shader=sky_shader)
 
@@ -273,6 +296,7 @@ def load_bundle(directory) -> Bundle:
                             f"has {codebook.shape[0]}")
     if mesh.faces.size and (mesh.faces.min() < 0 or mesh.faces.max() >= mesh.num_vertices):
         raise BadInputError(f"bundle {d}: mesh.npz faces index missing vertices")
+    mesh.core_faces = _core_faces(manifest.get("core_faces"), mesh.num_faces, f"bundle {d}: manifest.json")
     try:
         frag = raw["shader.frag"].decode("utf-8")
         vert = raw["shader.vert"].decode("utf-8") if "shader.vert" in raw else None

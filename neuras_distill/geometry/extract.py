@@ -9,12 +9,27 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
+from ..render.volume import FRINGE_OPACITY
 from .depth_fusion import fused_depth_sdf
 from .cleanup import clean_mesh, decimate, smooth_rough
 from .marching import marching_cubes_field
 from .mesh import MeshData
-from .unwrap import unwrap
+from .unwrap import UnwrapFailed, unwrap
 from .visibility import cull_unseen_faces, missed_opaque_fraction
+
+#: A two-layer mesh's shell (``MeshData.core_faces``) gets this share of the face budget (it only draws a
+#: soft fringe's fade outside the core's silhouette) ...
+SHELL_FACE_FRACTION = 0.2
+#: ... and its charts are laid out at this linear scale, i.e. a quarter of the texels per area of the core.
+SHELL_TEXEL_SCALE = 0.5
+
+
+def shell_budget(face_budget: int) -> int:
+    """Faces of a two-layer mesh's shell for a total ``face_budget`` (the core gets the rest)."""
+    return max(4, int(face_budget * SHELL_FACE_FRACTION))
+
 
 #: Truncation of the fused depth SDF in voxels: beyond the 4-voxel fringe offsets ``marching.outward_levels``
 #: tries, so those levels stay inside the fused values' range.
@@ -40,15 +55,21 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
             points see (``visibility.cull_unseen_faces``).
         field_opacity: optional (N, H, W) opacity of the field in ``train_cameras``: the iso-level then moves
             outwards until the mesh encloses the field's soft fringe (``marching.marching_cubes_field``).
-        field_depth: optional ((N, H, W) surface depths, (N, H, W) opacities) of the field in ``train_cameras``:
-            a density field whose level set is foam (a trained NeRF's unsupervised interior) is then meshed
-            from these fused depth maps (``depth_fusion.fused_depth_sdf``, ``marching.FOAM_HANDLES``).
+        field_depth: optional ((N, H, W) surface depths, (N, H, W) fringe depths, (N, H, W) opacities) of the
+            field in ``train_cameras`` (``render.volume``): a density field whose level set is foam (a trained
+            NeRF's unsupervised interior) whose level set xatlas cannot unwrap (tunnels and pockets:
+            ``unwrap.UnwrapFailed``) is then meshed again from the fused surface depths
+            (``depth_fusion.fused_depth_sdf``), its fringe shell from the fused fringe depths;
+            ``stats['level_set_unwrap_failure']`` says why.
         choose_resolution: optional callable (unwrapped MeshData) -> atlas side; the mesh is first unwrapped
             at ``texture_resolution``, then again at the chosen side when it differs (the padding is laid out
             in texels of the final atlas). ``stats['uv_resolution']`` holds the side used.
 
     Returns:
-        MeshData with uvs and ``stats``: ``faces_marching_cubes``, ``faces_after_clean``,
+        MeshData with uvs (two layers, ``core_faces`` set, when ``field_opacity`` made marching cubes add a
+        fringe shell: each layer is cleaned, decimated and culled on its own, the shell to
+        :func:`shell_budget` faces and a quarter of the core's texel density) and ``stats``:
+        ``faces_marching_cubes``, ``faces_after_clean``,
         ``faces_after_decimation``, ``culled_faces``, ``faces_final``, ``vertices_final``, ``uv_charts``,
         ``seconds_{marching_cubes,clean,decimate,cull,unwrap,total}`` plus each step's own keys.
 
@@ -56,54 +77,93 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
         BadInputError: no surface in the box, bad budget, cameras seeing nothing, unwrap failure.
     """
     t_start = time.perf_counter()
-    timings = {}
-
-    t = time.perf_counter()
     fringe_check = None
     if field_opacity is not None:
         def fringe_check(candidate: MeshData) -> float:
             return missed_opaque_fraction(candidate, train_cameras, field_opacity)
     fusion = None
-    if field_depth is not None:
-        depths, opacities = field_depth
+    if field_depth is not None and getattr(field, "kind", None) == "density":
+        surface_depths, fringe_depths, opacities = field_depth
 
-        def fusion(spec):
+        def fusion(spec, fringe: bool = False):
+            depths, opaque = (fringe_depths, FRINGE_OPACITY) if fringe else (surface_depths, 0.5)
             return fused_depth_sdf(spec.origin, spec.spacing, spec.shape, train_cameras, depths, opacities,
-                                   truncation=FUSION_TRUNCATION_VOXELS * float(spec.spacing.max()))
-    mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check,
-                                depth_fusion=fusion)
-    timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling
-    n_mc = mesh.num_faces
+                                   truncation=FUSION_TRUNCATION_VOXELS * float(spec.spacing.max()), opaque=opaque)
 
-    t = time.perf_counter()
-    mesh = smooth_rough(clean_mesh(mesh))
-    timings["clean"] = time.perf_counter() - t
-    n_clean = mesh.num_faces
-
-    t = time.perf_counter()
-    mesh = decimate(mesh, face_budget)
-    timings["decimate"] = time.perf_counter() - t
-    n_dec = mesh.num_faces
-
-    culled = 0
-    if cull_unseen:
+    def attempt(depth_fusion) -> MeshData:
+        timings: dict = {}
         t = time.perf_counter()
-        mesh = cull_unseen_faces(mesh, train_cameras, margin_deg=cull_margin_deg)
-        timings["cull"] = time.perf_counter() - t
-        culled = int(mesh.stats.get("culled_faces", 0))
+        mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check,
+                                    depth_fusion=depth_fusion)
+        timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling (and the fusion)
+        return _finish(mesh, train_cameras, timings, face_budget=face_budget, cull_unseen=cull_unseen,
+                       cull_margin_deg=cull_margin_deg, texture_resolution=texture_resolution,
+                       choose_resolution=choose_resolution, unwrap_timeout_s=unwrap_timeout_s,
+                       max_unwrap_faces=max_unwrap_faces)
+
+    try:
+        mesh = attempt(None)
+    except UnwrapFailed as failure:
+        if fusion is None:
+            raise
+        # the level set is a trained NeRF's noise (tunnels, pockets): mesh what the cameras saw instead
+        mesh = attempt(fusion)
+        mesh.stats["level_set_unwrap_failure"] = str(failure)
+    mesh.stats["seconds_total"] = time.perf_counter() - t_start
+    return mesh
+
+
+def _finish(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int, cull_unseen: bool,
+            cull_margin_deg: float, texture_resolution: int, choose_resolution, unwrap_timeout_s: float,
+            max_unwrap_faces: int) -> MeshData:
+    """Clean, decimate, cull (each layer on its own) and unwrap a marching-cubes mesh (:func:`extract_mesh`)."""
+    n_mc = mesh.num_faces
+    layers = mesh.layers()
+    budgets = [face_budget] if len(layers) == 1 else [face_budget - shell_budget(face_budget),
+                                                      shell_budget(face_budget)]
+    done, counts = [], {"clean": 0, "dec": 0, "culled": 0}
+    for layer, budget in zip(layers, budgets):
+        t = time.perf_counter()
+        layer = smooth_rough(clean_mesh(layer))
+        timings["clean"] = timings.get("clean", 0.0) + time.perf_counter() - t
+        counts["clean"] += layer.num_faces
+
+        t = time.perf_counter()
+        layer = decimate(layer, budget)
+        timings["decimate"] = timings.get("decimate", 0.0) + time.perf_counter() - t
+        counts["dec"] += layer.num_faces
+
+        if cull_unseen:           # each layer alone: the shell must not hide the core from the cameras
+            t = time.perf_counter()
+            layer = cull_unseen_faces(layer, train_cameras, margin_deg=cull_margin_deg)
+            timings["cull"] = timings.get("cull", 0.0) + time.perf_counter() - t
+            counts["culled"] += int(layer.stats.get("culled_faces", 0))
+        done.append(layer)
+    if len(done) == 1:
+        mesh, layout = done[0], None
+    else:
+        core, shell = done
+        stats = dict(core.stats, shell_faces=shell.num_faces,
+                     **{f"shell_{k}": v for k, v in shell.stats.items()
+                        if k.startswith(("clean_", "decimate_", "cull_", "smooth")) and isinstance(v, (int, float))})
+        mesh = MeshData.two_layers(core, shell, stats)
+        centre = shell.vertices.astype(np.float64).mean(axis=0)
+        layout = np.concatenate([core.vertices, centre + SHELL_TEXEL_SCALE * (shell.vertices - centre)])
 
     t = time.perf_counter()
-    unwrapped = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=texture_resolution)
+    unwrapped = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=texture_resolution,
+                       layout_vertices=layout)
     if choose_resolution is not None:
         chosen = int(choose_resolution(unwrapped))
         if chosen != int(texture_resolution):
-            unwrapped = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=chosen)
+            unwrapped = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=chosen,
+                               layout_vertices=layout)
     mesh = unwrapped
     timings["unwrap"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t_start
 
-    mesh.stats.update(faces_marching_cubes=n_mc, faces_after_clean=n_clean, faces_after_decimation=n_dec,
-                      culled_faces=culled, faces_final=mesh.num_faces, vertices_final=mesh.num_vertices,
+    mesh.stats.update(faces_marching_cubes=n_mc, faces_after_clean=counts["clean"],
+                      faces_after_decimation=counts["dec"], culled_faces=counts["culled"],
+                      faces_final=mesh.num_faces, vertices_final=mesh.num_vertices,
                       chart_count=mesh.stats.get("uv_charts"),
                       **{f"seconds_{k}": v for k, v in timings.items()})
     return mesh

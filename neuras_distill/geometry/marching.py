@@ -198,12 +198,6 @@ def outward_levels(kind: str, level: float, voxel: float) -> list[float]:
     return [level / 2.0 ** j for j in range(7)]
 
 
-#: A density level set with more handles than this (genus summed over components) is a trained NeRF's
-#: unsupervised interior, not a shape: the Instant-NGP fixtures have 1,210 (bunny) and ~2,700 (gradient ball),
-#: the synthetic scenes 0-5. Such a field is meshed from its fused depth maps instead (``depth_fusion``).
-FOAM_HANDLES = 100
-
-
 def mesh_handles(mesh: MeshData) -> int:
     """Handles (genus) summed over the connected components: ``C - chi / 2`` with ``chi = V - E + F``."""
     from .cleanup import face_components
@@ -234,12 +228,15 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
         fringe_check: optional callable (MeshData) -> fraction of the field's opaque pixels the mesh misses;
             the level then moves outwards (:func:`outward_levels`) until it is at most ``fringe_tolerance``
             (or the last candidate is reached; see :func:`_enclose_fringe`).
-        depth_fusion: optional callable (GridSpec) -> ((R0, R1, R2) SDF, stats) fusing the field's depth maps
-            (``depth_fusion.fused_depth_sdf``); a density field whose level set has more than :data:`FOAM_HANDLES`
-            handles is then meshed from it (and its fringe levels are SDF offsets).
+        depth_fusion: optional callable (GridSpec, fringe=False) -> ((R0, R1, R2) SDF, stats) fusing the field's
+            surface (or, with ``fringe``, fringe) depth maps (``depth_fusion.fused_depth_sdf``); a density field
+            is then meshed from the surface fusion instead of its level set (``geometry.extract`` does so when
+            the level set cannot be unwrapped), and its fringe shell candidates are the fringe fusion's level 0
+            and outward offsets. ``stats['mc_density_handles']`` counts the level set's handles either way.
 
     Returns:
-        MeshData (vertices (V, 3) float32 world, faces (F, 3) int32 CCW from outside) with ``stats``: grid
+        MeshData (vertices (V, 3) float32 world, faces (F, 3) int32 CCW from outside; two layers, core and
+        shell, when ``fringe_check`` chose a shell) with ``stats``: grid
         shape/spacing, ``mc_level``, ``mc_faces``, ``grid_nonfinite``, ``mc_cavity_voxels``,
         ``mc_folded_fraction``, timings; with ``fringe_check`` also ``mc_surface_level`` (the level before
         moving out), ``mc_fringe_offset_voxels`` (SDF) or ``mc_fringe_divisor`` (density) and
@@ -265,16 +262,19 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
             stats["mc_level_rule"] = f"min(ln2/step, 0.5*max) with step={step:.6g}"
     t0 = time.perf_counter()
     mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, float(level))
-    if depth_fusion is not None and kind == "density":
-        handles = mesh_handles(mesh)
-        stats["mc_density_handles"] = handles
-        if handles > FOAM_HANDLES:
+    shell_grid = None
+    if kind == "density":
+        stats["mc_density_handles"] = mesh_handles(mesh)
+        if depth_fusion is not None:
             grid, fused_stats = depth_fusion(spec)
             kind, level = "sdf", 0.0
             mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, level)
             stats.update(fused_stats, mc_surface_from="fused depth maps", mc_handles=mesh_handles(mesh))
+            if fringe_check is not None:
+                shell_grid = depth_fusion(spec, fringe=True)[0]
     if fringe_check is not None:
-        mesh, level = _enclose_fringe(grid, spec, kind, float(level), mesh, fringe_check, fringe_tolerance, stats)
+        mesh, level = _enclose_fringe(grid, spec, kind, float(level), mesh, fringe_check, fringe_tolerance, stats,
+                                      shell_grid=shell_grid)
     stats.update(mesh.stats, mc_folded_fraction=folded_fraction(mesh.vertices, mesh.faces))
     stats.update(mc_level=float(level), mc_faces=mesh.num_faces, mc_vertices=mesh.num_vertices,
                  mc_seconds=time.perf_counter() - t0, voxel_size=float(spec.spacing.max()))
@@ -283,13 +283,21 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
 
 
 def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, tolerance: float,
-                    stats: dict) -> tuple[MeshData, float]:
-    """The tightest mesh among :func:`outward_levels` that misses at most ``tolerance`` of the opaque pixels;
-    when none does, the least-missing one if it misses at most half of what the surface mesh misses, else the
-    surface mesh (chasing a trained NeRF's fog grows the mesh without covering the fringe). Records what was
-    tried in ``stats``."""
+                    stats: dict, shell_grid=None) -> tuple[MeshData, float]:
+    """The surface mesh, plus as its shell (a two-layer ``MeshData``, see ``MeshData.core_faces``) the tightest
+    mesh among :func:`outward_levels` that misses at most ``tolerance`` of the opaque pixels; when none does,
+    the least-missing one if it misses at most half of what the surface mesh misses, else no shell (chasing a
+    trained NeRF's fog grows the mesh without covering the fringe). Returns (mesh, shell level). Records what
+    was tried in ``stats``.
+
+    Two layers, not the shell alone: a single mesh at the shell level put the texture in front of the surface,
+    so the interior colour had to be learnt with parallax through the fringe (the gradient ball's interior
+    showed a mosaic of patches); the core keeps the surface where it is and the shell only draws outside the
+    core's silhouette."""
     voxel = float(spec.spacing.max())
     levels = outward_levels(kind, level, voxel)
+    if shell_grid is not None:       # a fused fringe SDF: its own zero level first, then outward offsets
+        grid, levels = shell_grid, [level] + outward_levels("sdf", 0.0, voxel)
     best = (check(mesh), 0, mesh)
     missed_at_surface, first = best[0], mesh
     lo, hi = float(grid.min()), float(grid.max())
@@ -298,19 +306,24 @@ def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, 
             break
         if not lo < candidate < hi:
             break
-        trial = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, candidate)
+        trial = marching_cubes_grid(grid, spec.origin, spec.spacing, "sdf" if shell_grid is not None else kind,
+                                    candidate)
         missed = check(trial)
         if missed < best[0]:
             best = (missed, i, trial)
     if best[0] > tolerance and best[0] > 0.5 * missed_at_surface:     # moving out barely helped: keep the surface
         best = (missed_at_surface, 0, first)
-    missed, index, mesh = best
+    missed, index, shell = best
+    mesh = first if index == 0 else MeshData.two_layers(first, shell)
     stats.update(mc_surface_level=level, mc_fringe_missed_at_surface=missed_at_surface, mc_fringe_missed=missed)
-    if kind == "sdf":
+    if shell_grid is not None:
+        stats.update(mc_fringe_offset_voxels=levels[index] / voxel if index else 0.0,
+                     mc_shell_from="fused fringe depth maps" if index else None)
+    elif kind == "sdf":
         stats["mc_fringe_offset_voxels"] = (levels[index] - level) / voxel
     else:
         stats["mc_fringe_divisor"] = 2.0 ** index
     return mesh, levels[index]
 
 
-__all__ = ["marching_cubes_field", "mesh_handles", "FOAM_HANDLES", "outward_levels", "marching_cubes_grid", "fill_cavities", "folded_fraction", "density_level", "nudge_level", "signed_volume"]
+__all__ = ["marching_cubes_field", "mesh_handles", "outward_levels", "marching_cubes_grid", "fill_cavities", "folded_fraction", "density_level", "nudge_level", "signed_volume"]

@@ -18,12 +18,16 @@ class MeshData:
             W x H atlas has its centre at ((i + 0.5) / W, (j + 0.5) / H) with row j = 0 at v = 0), or None
             before unwrapping. After unwrapping vertices are split along seams, so V grows.
         stats: what each processing step did (counts, timings), for the report.
+        core_faces: two-layer meshes (a soft fringe's shell around the opaque surface): faces[:core_faces] are
+            the core, faces[core_faces:] the shell; a pixel shows the nearest core fragment when a core face
+            covers it, else the nearest shell fragment. None: one layer.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     uvs: np.ndarray | None = None
     stats: dict = field(default_factory=dict)
+    core_faces: int | None = None
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32).reshape(-1, 3)
@@ -57,18 +61,44 @@ class MeshData:
                             - (t[:, 1, 1] - t[:, 0, 1]) * (t[:, 2, 0] - t[:, 0, 0]))
         return float(area.sum())
 
+    def layers(self) -> list["MeshData"]:
+        """[the mesh] for one layer; [core, shell] (each with only its own vertices, ``stats`` shared) for two."""
+        if self.core_faces is None:
+            return [self]
+        out = []
+        for faces in (self.faces[:self.core_faces], self.faces[self.core_faces:]):
+            used = np.unique(faces)
+            remap = np.full(self.num_vertices, -1, dtype=np.int64)
+            remap[used] = np.arange(used.size)
+            out.append(MeshData(self.vertices[used], remap[faces], None if self.uvs is None else self.uvs[used],
+                                dict(self.stats)))
+        return out
+
+    @classmethod
+    def two_layers(cls, core: "MeshData", shell: "MeshData", stats: dict | None = None) -> "MeshData":
+        """One mesh holding ``core`` then ``shell`` (``core_faces`` = core's face count); uvs are kept only
+        when both have them."""
+        uvs = (np.concatenate([core.uvs, shell.uvs]) if core.uvs is not None and shell.uvs is not None else None)
+        return cls(np.concatenate([core.vertices, shell.vertices]),
+                   np.concatenate([core.faces, shell.faces + core.num_vertices]), uvs,
+                   dict(core.stats if stats is None else stats), core_faces=core.num_faces)
+
     def __repr__(self) -> str:
         uv = "none" if self.uvs is None else f"{self.uvs.shape} {self.uvs.dtype}"
+        layers = "" if self.core_faces is None else f", core_faces={self.core_faces}"
         return (f"MeshData(vertices={self.vertices.shape} {self.vertices.dtype}, "
-                f"faces={self.faces.shape} {self.faces.dtype}, uvs={uv})")
+                f"faces={self.faces.shape} {self.faces.dtype}, uvs={uv}{layers})")
 
     def save_npz(self, path) -> None:
         arrays = {"vertices": self.vertices, "faces": self.faces}
         if self.uvs is not None:
             arrays["uvs"] = self.uvs
+        if self.core_faces is not None:
+            arrays["core_faces"] = np.asarray(self.core_faces, dtype=np.int64)
         np.savez_compressed(path, **arrays)
 
     @classmethod
     def load_npz(cls, path) -> "MeshData":
         with np.load(path, allow_pickle=False) as data:
-            return cls(data["vertices"], data["faces"], data["uvs"] if "uvs" in data else None)
+            return cls(data["vertices"], data["faces"], data["uvs"] if "uvs" in data else None,
+                       core_faces=int(data["core_faces"]) if "core_faces" in data else None)

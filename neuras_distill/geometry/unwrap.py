@@ -38,6 +38,10 @@ from .mesh import MeshData
 CRASH_HOOK_ENV = "NEURAS_DISTILL_TEST_XATLAS_FAULT"
 
 
+class UnwrapFailed(BadInputError):
+    """xatlas crashed or timed out twice on a mesh (the message names the face budget to try)."""
+
+
 # ---------------------------------------------------------------------------------------------- child side
 def _xatlas_worker(conn, vertices: np.ndarray, faces: np.ndarray, options: dict) -> None:
     """Runs in the child: unwrap, send back a dict (or nothing when it crashes)."""
@@ -132,7 +136,8 @@ def uv_face_areas(uvs: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000, resolution: int | None = None,
-           padding: int = 3, min_padding: float = 2.0, max_iterations: int = 1) -> MeshData:
+           padding: int = 3, min_padding: float = 2.0, max_iterations: int = 1,
+           layout_vertices: np.ndarray | None = None) -> MeshData:
     """UV-unwrap ``mesh`` into one square atlas.
 
     Args:
@@ -143,6 +148,9 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000
         padding: texels xatlas leaves between charts (plus its bilinear margin).
         min_padding: smallest acceptable effective padding at R texels (regenerate with more padding below).
         max_iterations: xatlas ChartOptions.max_iterations (small = fast).
+        layout_vertices: optional (V, 3) positions xatlas lays the charts out from (default: the vertices);
+            charts are sized by their area there, so a part scaled by k gets k^2 of the texels it would get.
+            The returned geometry is always ``mesh.vertices``.
 
     Returns:
         MeshData with vertices (V', 3) split along seams (V' >= V), faces (F, 3) in the same order, uvs (V', 2)
@@ -165,7 +173,10 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000
     if not np.isfinite(mesh.vertices).all():
         raise BadInputError("the mesh has NaN or Inf vertices; run clean_mesh first")
     t0 = time.perf_counter()
-    vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
+    vertices = np.ascontiguousarray(mesh.vertices if layout_vertices is None else layout_vertices,
+                                    dtype=np.float32).reshape(-1, 3)
+    if vertices.shape[0] != mesh.num_vertices or not np.isfinite(vertices).all():
+        raise BadInputError("unwrap: layout_vertices must be finite, one row per mesh vertex")
     faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
     options = {"resolution": resolution, "padding": int(padding), "min_padding": float(min_padding),
                "max_iterations": int(max_iterations)}
@@ -180,7 +191,7 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000
             break
     if result is None:
         what = "crashed" if attempts[-1] == "crashed" else "timed out"
-        raise BadInputError(f"UV unwrap {what} on {n_faces} faces (tried twice, the second time with jittered "
+        raise UnwrapFailed(f"UV unwrap {what} on {n_faces} faces (tried twice, the second time with jittered "
                             f"vertices; {timeout_s:g} s limit per try); lower --face-budget "
                             f"(e.g. to {max(1000, n_faces // 2)}) or raise the unwrap time limit")
     vmapping, indices, uv = result["vmapping"], result["indices"], result["uvs"].astype(np.float64)
@@ -192,7 +203,7 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000
                  uv_utilization=result["utilization"] * result["width"] * result["height"] * scale * scale,
                  uv_resolution=resolution, uv_padding_texels=result["padding"] * resolution * scale,
                  uv_attempts=attempts, uv_seconds=time.perf_counter() - t0)
-    return MeshData(mesh.vertices[vmapping], indices, uv, stats)
+    return MeshData(mesh.vertices[vmapping], indices, uv, stats, core_faces=mesh.core_faces)
 
 
-__all__ = ["unwrap", "uv_face_areas", "CRASH_HOOK_ENV"]
+__all__ = ["unwrap", "uv_face_areas", "UnwrapFailed", "CRASH_HOOK_ENV"]

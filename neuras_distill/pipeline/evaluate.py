@@ -24,13 +24,14 @@ from ..render.cameras import Cameras
 
 @dataclass
 class FieldRenders:
-    """The field's renders of a camera set: ``images`` (H, W, 3), ``opacities`` (H, W), ``surface_depths``
-    (H, W) (distance along the unit ray where the opacity reaches 0.5, 0 where it never does) per view, and
-    ``seconds`` per frame."""
+    """The field's renders of a camera set: ``images`` (H, W, 3), ``opacities`` (H, W), ``surface_depths`` and
+    ``fringe_depths`` (H, W) (distance along the unit ray where the opacity reaches 0.5 and
+    ``render.volume.FRINGE_OPACITY``, 0 where it never does) per view, and ``seconds`` per frame."""
 
     images: list[np.ndarray]
     opacities: list[np.ndarray]
     surface_depths: list[np.ndarray]
+    fringe_depths: list[np.ndarray]
     seconds: list[float]
 
 
@@ -40,16 +41,19 @@ def render_field_timed(renderer, cameras: Cameras, progress=None) -> tuple[list[
     return renders.images, renders.seconds
 
 
-def render_field_views(renderer, cameras: Cameras, progress=None) -> FieldRenders:
-    """Volume-render every camera (timed, one frame at a time)."""
-    renders = FieldRenders([], [], [], [])
+def render_field_views(renderer, cameras: Cameras, progress=None, *, depths: bool = False) -> FieldRenders:
+    """Volume-render every camera (timed, one frame at a time); the surface and fringe depths only with
+    ``depths`` (the teacher's views; timed held-out renders do not track them)."""
+    renders = FieldRenders([], [], [], [], [])
     for i in range(len(cameras)):
         t0 = time.perf_counter()
-        out = renderer.render(cameras, i)
+        out = renderer.render(cameras, i, crossings=depths)
         renders.seconds.append(time.perf_counter() - t0)
         renders.images.append(out["rgb"])
         renders.opacities.append(out["opacity"])
-        renders.surface_depths.append(out["surface_depth"])
+        if depths:
+            renders.surface_depths.append(out["surface_depth"])
+            renders.fringe_depths.append(out["fringe_depth"])
         if progress is not None:
             progress(i + 1, len(cameras))
     return renders

@@ -80,6 +80,14 @@ def summary_table(rep: dict) -> str:
         a = rep["ablation"]
         lines.append(f"ablation: without skyboxes {a['psnr_without_skyboxes']:.2f} dB "
                      f"(-{a['drop_db']:.2f} dB against {a['psnr_with_skyboxes']:.2f} dB with them)")
+    stab = rep.get("stability")
+    if stab:
+        noted = [f"{it['name']} ({it['verdict']})" for it in stab["items"] if it["verdict"] != "fine"]
+        raised = ", ".join(f"{k} {a} -> {b}" for k, (a, b) in stab.get("applied", {}).items())
+        kept = ", ".join(f"{k} {a} (recommended {b})" for k, (a, b) in stab.get("not_applied", {}).items())
+        lines.append(f"stability: {stab['verdict']}" + (f": {', '.join(noted)}" if noted else "")
+                     + (f"; raised {raised}" if raised else "") + (f"; kept as configured {kept}" if kept else "")
+                     + " (neuras-distill check)")
     for item in rep["left_out"]:
         lines.append(f"left out: {item['component']}: {item['reason']}")
     return "\n".join(lines)

@@ -170,10 +170,9 @@ def _resolve_fringe(field, cfg: DistillConfig, opacity: np.ndarray, left_out: li
 
 
 def _resolve_facing(mesh, enclose: bool, left_out: list) -> bool:
-    """The facing cosine |n . d| as a shader input when the mesh was moved out to enclose a soft fringe
-    (its grazing pixels fade with the angle; see ``neural/shader.py``); otherwise left out, with the reason."""
-    moved = (mesh.stats.get("mc_fringe_offset_voxels") or 0) > 0 or (mesh.stats.get("mc_fringe_divisor") or 1) > 1
-    if enclose and moved:
+    """The facing cosine |n . d| as a shader input when the mesh has a shell enclosing a soft fringe (its
+    grazing pixels fade with the angle; see ``neural/shader.py``); otherwise left out, with the reason."""
+    if enclose and mesh.core_faces is not None:
         return True
     if enclose:
         left_out.append({"component": "facing input",
@@ -227,16 +226,49 @@ def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict 
         cfg = config.validate()
     check_field(field)
     cameras = _pick_cameras(field, cameras, cfg)
+    stability = _check_stability(field, cameras, cfg, log)
     torch.manual_seed(cfg.train.seed)
     np.random.seed(cfg.train.seed)
 
     if out is None:
-        return _run(field, cameras, cfg, None, log, progress)
+        return _run(field, cameras, cfg, None, log, progress, stability)
     folder = RunFolder(out)
     with folder as tmp:
-        result = _run(field, cameras, cfg, tmp, log, progress)
+        result = _run(field, cameras, cfg, tmp, log, progress, stability)
     result.out = folder.out
     log(f"run folder: {folder.out}")
+    return result
+
+
+def _check_stability(field, cameras: Cameras, cfg: DistillConfig, log) -> dict:
+    """``neuras-distill check`` on the field before anything is rendered (``stability/probe.py``): a refused
+    probe stops the run with its reason; adaptations raise the configuration's settings (never lower them)
+    where they are at their defaults; a setting the user (or a preset) chose is kept and the recommendation
+    reported. Returns the report's JSON with ``applied`` and ``not_applied`` ({key: [current, recommended]})."""
+    from ..stability.probe import probe_field
+
+    report = probe_field(field, cameras, num_steps=cfg.teacher.num_steps,
+                         grid_resolution=cfg.geometry.grid_resolution)
+    require(report.verdict != "refused", f"the field cannot be distilled: {report.reason()}")
+    defaults = DistillConfig()
+    applied, kept = {}, {}
+    for key, value in report.adaptations.items():
+        section, name = key.split(".", 1)
+        part = getattr(cfg, section)
+        old = getattr(part, name)
+        if value <= old:
+            continue
+        if old != getattr(getattr(defaults, section), name):
+            kept[key] = [old, type(old)(value)]
+            continue
+        setattr(part, name, type(old)(value))
+        applied[key] = [old, type(old)(value)]
+    result = report.to_json()
+    result.update(applied=applied, not_applied=kept)
+    log(f"stability check: {report.verdict}"
+        + (f"; raised {', '.join(f'{k} {a} -> {b}' for k, (a, b) in applied.items())}" if applied else "")
+        + (f"; kept as configured {', '.join(f'{k} {a} (recommended {b})' for k, (a, b) in kept.items())}"
+           if kept else "") + f" ({report.seconds:.1f} s)")
     return result
 
 
@@ -257,7 +289,8 @@ def _pick_cameras(field, cameras, cfg: DistillConfig) -> Cameras:
     return cameras
 
 
-def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool) -> DistillResult:
+def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool,
+         stability: dict | None = None) -> DistillResult:
     from ..bake.bundle import bake
     from ..neural.model import NeuralTextureModel, view_inputs
     from ..neural.train import fit
@@ -294,7 +327,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     stages.start("teacher", f"volume-rendering {len(train)} training views at {train.width}x{train.height}, "
                             f"{cfg.teacher.num_steps} steps/ray")
     teacher = VolumeRenderer(field, num_steps=cfg.teacher.num_steps)
-    teacher_views = evaluate.render_field_views(teacher, train, _progress_printer(log, "teacher", progress))
+    teacher_views = evaluate.render_field_views(teacher, train, _progress_printer(log, "teacher", progress),
+                                                depths=True)
     targets = np.stack(teacher_views.images).astype(np.float32)
     train_opacity = np.stack(teacher_views.opacities)
     require(bool(np.isfinite(targets).all()), "the field renders NaN or Inf colours; check its parameters")
@@ -307,7 +341,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     density: dict = {}
 
     def by_texel_density(unwrapped):
-        side, info = decisions.texel_density_resolution(unwrapped, train, hi=cfg.texture.max_resolution)
+        # the core sets the density (a fringe shell covers the same pixels at a quarter of its texel density)
+        side, info = decisions.texel_density_resolution(unwrapped.layers()[0], train, hi=cfg.texture.max_resolution)
         samples = plan["max_steps"] * plan["samples_per_step"]
         budget = decisions.training_budget_resolution(samples, info["uv_area"])
         density.update(info, chosen=min(side, budget), budget=budget, samples=samples)
@@ -323,7 +358,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                         choose_resolution=by_texel_density if auto_res else None,
                         cull_margin_deg=cfg.geometry.cull_margin_deg,
                         field_opacity=train_opacity if enclose else None,
-                        field_depth=(np.stack(teacher_views.surface_depths), train_opacity))
+                        field_depth=(np.stack(teacher_views.surface_depths), np.stack(teacher_views.fringe_depths),
+                                     train_opacity))
     tex_res = int(mesh.stats["uv_resolution"])
     charts = int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
@@ -356,7 +392,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     aabb64 = np.asarray(torch.as_tensor(field.aabb).double().reshape(2, 3).cpu().numpy())
     origin = 0.5 * (aabb64[0] + aabb64[1])            # float64: GL and training work relative to it
     local_mesh = MeshData((mesh.vertices.astype(np.float64) - origin).astype(np.float32), mesh.faces, mesh.uvs,
-                          mesh.stats)
+                          mesh.stats, core_faces=mesh.core_faces)
     gbuffer = rasterize_gbuffer(local_mesh, shift_cameras(train, origin), cull_back_faces=cfg.geometry.cull_back_faces)
     dirs = view_inputs(np.stack([train.rays(i)[1].numpy() for i in range(len(train))]), gbuffer.face_id,
                        local_mesh.face_normals(), use_facing)
@@ -483,6 +519,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "frame_time_ms": {"field_median": 1000 * float(np.median(field_seconds)),
                           "bundle_median": timing["median_ms"], "bundle_p90": timing.get("p90_ms")},
         "training_plan": plan,
+        "stability": stability,
         "train_log": train_history,
         "train_summary": {k: v for k, v in train_log.as_dict().items() if k != "entries"},
         "views": {"train": len(train), "test": len(test),

@@ -5,6 +5,12 @@ buffer; depth test on (GL_LESS, first drawn wins ties), back-face culling off (m
 at each pixel centre (no MSAA). The vertex stage is ``shaders.VERTEX_SHADER``, the same one playback uses, and
 the projection is ``projection.mvp_for`` (the pixel-centre convention of ``Cameras.rays``). Read-back flips the
 rows so row 0 is the top of the image.
+
+Two-layer meshes (``MeshData.core_faces``) are drawn by :func:`draw_mesh` in two draw calls, core then shell,
+with the vertex uniform ``u_layer`` giving each layer its half of the depth range (``shaders.py``): per pixel the
+nearest core fragment, else the nearest shell fragment. Face ids stay global (``u_face_offset``) and the depth
+attachment holds the true view-space depth. :func:`mesh_layers` is the one place that turns a mesh into draw
+calls; playback (``renderer.py``) uses it too.
 """
 
 from __future__ import annotations
@@ -16,6 +22,9 @@ from .context import get_context
 from .gbuffer import GBuffer
 from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for, view_matrix
 from .shaders import GBUFFER_FRAGMENT_SHADER, VERTEX_SHADER
+
+#: ``u_layer`` values (shaders.VERTEX_SHADER): one layer (depth as projected), the core, the shell.
+SINGLE_LAYER, CORE_LAYER, SHELL_LAYER = -1.0, 0.0, 1.0
 
 
 def _empty_gbuffer(n: int, h: int, w: int) -> GBuffer:
@@ -58,23 +67,60 @@ def mesh_vertex_array(ctx, program, mesh: MeshData):
     return vao, [vbo, ibo]
 
 
+def mesh_layers(mesh: MeshData) -> list[tuple[float, int, int]]:
+    """The draw calls of ``mesh``: [(u_layer, first face, face count)], empty ranges left out.
+
+    A single-layer mesh (``core_faces`` None) is one call with :data:`SINGLE_LAYER`; a two-layer mesh is the
+    core (faces[:core_faces], :data:`CORE_LAYER`) then the shell (:data:`SHELL_LAYER`). Core first: the shell's
+    fragments behind the core then fail the depth test before they are shaded.
+    """
+    f = mesh.num_faces
+    core = getattr(mesh, "core_faces", None)
+    if core is None:
+        return [(SINGLE_LAYER, 0, f)] if f else []
+    core = int(core)
+    return [(layer, first, count) for layer, first, count in ((CORE_LAYER, 0, core), (SHELL_LAYER, core, f - core))
+            if count > 0]
+
+
+def draw_mesh(vao, program, layers: list[tuple[float, int, int]]) -> None:
+    """Draw ``mesh_layers(mesh)`` with ``vao`` (from :func:`mesh_vertex_array`): per layer set ``u_layer`` and,
+    where the program has it, ``u_face_offset`` (the first face, so gl_PrimitiveID + offset is the global face
+    index), then draw that range of the index buffer."""
+    import moderngl  # noqa: PLC0415 (lazy)
+
+    for layer, first, count in layers:
+        if "u_layer" in program:
+            program["u_layer"].value = layer
+        if "u_face_offset" in program:
+            program["u_face_offset"].value = first
+        vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
+
+
 def _check_mesh(mesh: MeshData) -> None:
     if mesh.num_faces and (int(mesh.faces.min()) < 0 or int(mesh.faces.max()) >= mesh.num_vertices):
         raise ValueError(f"mesh faces index vertices outside [0, {mesh.num_vertices})")
     if mesh.uvs is not None and mesh.uvs.shape[0] != mesh.num_vertices:
         raise ValueError(f"mesh has {mesh.uvs.shape[0]} uvs for {mesh.num_vertices} vertices")
+    core = getattr(mesh, "core_faces", None)
+    if core is not None and (isinstance(core, bool) or not isinstance(core, (int, np.integer))
+                             or not 0 <= int(core) <= mesh.num_faces):
+        raise ValueError(f"mesh core_faces must be None or an integer in [0, {mesh.num_faces}], got {core!r}")
 
 
 def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: bool = True) -> GBuffer:
     """Rasterize ``mesh`` for every camera of ``cameras``.
 
     Args:
-        mesh: world-space MeshData; ``uvs`` may be None (then ``uv`` is all zeros).
+        mesh: world-space MeshData; ``uvs`` may be None (then ``uv`` is all zeros). With ``core_faces`` set, the
+            nearest core face wins at every pixel a core face covers, the nearest shell face elsewhere.
         cameras: ``Cameras`` (N cameras, W x H).
         ctx: moderngl context (default :func:`context.get_context`).
+        cull_back_faces: cull faces seen from behind (both layers alike).
     Returns:
         GBuffer with uv (N, H, W, 2) f32 (0 where empty), face_id (N, H, W) i32 (index into ``mesh.faces``,
-        -1 where empty), coverage (N, H, W) bool, depth (N, H, W) f32 view-space depth along -z (inf where empty).
+        -1 where empty), coverage (N, H, W) bool, depth (N, H, W) f32 view-space depth along -z of the visible
+        face (inf where empty).
     """
     n, w, h = len(cameras), int(cameras.width), int(cameras.height)
     _check_mesh(mesh)
@@ -94,6 +140,7 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
         resources.append(prog)
         vao, bufs = mesh_vertex_array(ctx, prog, mesh)
         resources += [vao, *bufs]
+        layers = mesh_layers(mesh)
         tex_uv = ctx.texture((w, h), 2, dtype="f4")
         tex_face = ctx.texture((w, h), 1, dtype="i4")
         tex_depth = ctx.texture((w, h), 1, dtype="f4")
@@ -111,7 +158,7 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
             view = view_matrix(cameras.c2w[i].double().numpy())
             prog["u_view_z"].value = tuple(float(x) for x in view[2])
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            vao.render(moderngl.TRIANGLES)
+            draw_mesh(vao, prog, layers)
             uv[i] = np.frombuffer(fbo.read(components=2, attachment=0, dtype="f4"), np.float32).reshape(h, w, 2)[::-1]
             face[i] = np.frombuffer(fbo.read(components=1, attachment=1, dtype="i4"), np.int32).reshape(h, w)[::-1]
             depth[i] = np.frombuffer(fbo.read(components=1, attachment=2, dtype="f4"), np.float32).reshape(h, w)[::-1]

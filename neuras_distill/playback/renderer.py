@@ -1,9 +1,11 @@
 """Real-time playback of a baked bundle (this module owns ``BundleRenderer``).
 
 The bundle's mesh is drawn with ``shaders.VERTEX_SHADER`` and the bundle's own fragment shader into an RGBA8
-colour attachment (what a display shows) with a 24-bit depth buffer, depth test on, back-face culling off,
-cleared to ``bundle.background_color``. Texture binding follows docs/architecture.md: every entry of
-``bundle.textures`` (uniform name -> array) becomes a NEAREST, mipmap-free texture bound to the sampler of that
+colour attachment (what a display shows) with a 24-bit depth buffer, depth test on, back faces culled when the
+manifest says ``cull_back_faces``, cleared to ``bundle.background_color``. A two-layer mesh
+(``mesh.core_faces``, manifest ``core_faces``) is drawn as ``rasterize.mesh_layers`` says: core then shell, one
+draw call each with ``u_layer`` 0 / 1, so the core wins every pixel it covers (no blending: opaque rgb).
+Texture binding follows docs/architecture.md: every entry of ``bundle.textures`` (uniform name -> array) becomes a NEAREST, mipmap-free texture bound to the sampler of that
 name; uint16 arrays -> R16UI..RGBA16UI (``usampler2D``), float32 arrays -> R32F..RGBA32F (``sampler2D``),
 row 0 of the array = v = 0 (uploaded as is). Uniforms the compiled program optimised out are skipped.
 
@@ -26,7 +28,7 @@ import numpy as np
 from ..errors import BadInputError
 from .context import get_context
 from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for, shift_cameras
-from .rasterize import _check_mesh, mesh_vertex_array, set_raster_state
+from .rasterize import _check_mesh, draw_mesh, mesh_layers, mesh_vertex_array, set_raster_state
 from .shaders import VERTEX_SHADER
 
 
@@ -86,6 +88,7 @@ class BundleRenderer:
             self._resources += [self.sky_program, self.sky_vao]
             self.sky_center = np.asarray(bundle.manifest["skybox"]["center"], np.float64).reshape(3)
         self.vao = None
+        self._layers = mesh_layers(mesh)
         if mesh.num_faces:
             self.vao, bufs = mesh_vertex_array(self.ctx, self.program, mesh)
             self._resources += [self.vao, *bufs]
@@ -152,7 +155,6 @@ class BundleRenderer:
             fbo.depth_mask = True
 
     def _draw(self, cameras, i: int, skybox: bool = True):
-        mgl = self._mgl
         fbo = self._fbo(int(cameras.width), int(cameras.height))
         fbo.use()
         fbo.clear(*self.background, 1.0, depth=1.0)
@@ -161,7 +163,7 @@ class BundleRenderer:
         set_raster_state(self.ctx, self.cull_back_faces)
         if self.vao is not None:
             self._set_camera(shift_cameras(cameras, self.origin), i)
-            self.vao.render(mgl.TRIANGLES)
+            draw_mesh(self.vao, self.program, self._layers)
         if skybox and self.sky_program is not None:
             self._draw_sky(cameras, i)         # after the mesh: only the pixels it left empty are shaded
         return fbo

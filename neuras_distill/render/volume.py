@@ -21,7 +21,8 @@ composited behind: ``rgb = Σ w c + (1 − Σ w) · bg``.
 Outputs per pixel: ``rgb`` in [0, 1]; ``opacity`` = Σ w; ``depth`` = Σ w t / Σ w, the expected distance
 along the (unit) ray from the camera centre, not the camera-space z (0 where opacity is 0);
 ``surface_depth`` = the distance at which the accumulated opacity reaches 0.5 (linear within the step; 0 where
-it never does): the visible surface, where the expected depth of a soft fringe lies deeper.
+it never does): the visible surface, where the expected depth of a soft fringe lies deeper; ``fringe_depth``
+the same at opacity :data:`FRINGE_OPACITY` (where a soft fringe starts).
 """
 
 from __future__ import annotations
@@ -35,6 +36,11 @@ import torch
 from ..errors import require
 from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth, transmittance_from_alpha
 from .occupancy import OccupancyGrid, default_inv_s
+
+#: Opacity at which a soft fringe starts (``fringe_depth``; the silhouette band of the metrics starts at 0.02,
+#: the fringe width and the shell's coverage check at 0.05).
+FRINGE_OPACITY = 0.05
+OUTPUTS = ("rgb", "depth", "surface_depth", "fringe_depth", "opacity")
 from .rays import ray_aabb
 
 _FAR_SDF = 1e3  # SDF value used for endpoints that were not evaluated (masked out anyway)
@@ -98,24 +104,27 @@ class VolumeRenderer:
 
     # ------------------------------------------------------------------ rays
     @torch.no_grad()
-    def render_rays(self, origins: torch.Tensor, dirs: torch.Tensor) -> dict[str, torch.Tensor]:
+    def render_rays(self, origins: torch.Tensor, dirs: torch.Tensor, *,
+                    crossings: bool = False) -> dict[str, torch.Tensor]:
         """Render rays: origins (N, 3), unit directions of travel (N, 3), world frame.
 
-        Returns ``{"rgb": (N, 3), "depth": (N,), "surface_depth": (N,), "opacity": (N,)}`` float32 tensors.
+        Returns ``{"rgb": (N, 3), "depth", "surface_depth", "fringe_depth", "opacity": (N,)}`` float32 tensors;
+        the surface and fringe depths only with ``crossings`` (zeros otherwise; the teacher asks for them).
         """
         origins = origins.reshape(-1, 3).float()
         dirs = dirs.reshape(-1, 3).float()
-        outs = [self._render_chunk(origins[i:i + self.chunk], dirs[i:i + self.chunk])
+        outs = [self._render_chunk(origins[i:i + self.chunk], dirs[i:i + self.chunk], crossings)
                 for i in range(0, origins.shape[0], self.chunk)]
-        return {k: torch.cat([o[k] for o in outs], dim=0) for k in ("rgb", "depth", "surface_depth", "opacity")}
+        return {k: torch.cat([o[k] for o in outs], dim=0) for k in OUTPUTS}
 
-    def _render_chunk(self, origins: torch.Tensor, dirs: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _render_chunk(self, origins: torch.Tensor, dirs: torch.Tensor,
+                      crossings: bool = False) -> dict[str, torch.Tensor]:
         n_rays = origins.shape[0]
         self.stats["rays"] += n_rays
         out_rgb = torch.zeros(n_rays, 3)
         out_wt = torch.zeros(n_rays)
         out_w = torch.zeros(n_rays)
-        out_half = torch.zeros(n_rays)
+        out_half = torch.zeros(n_rays, 2)
         t_near, t_far, hit = ray_aabb(origins, dirs, self.aabb)
         ids = torch.nonzero(hit).flatten()
         if ids.numel():
@@ -127,13 +136,13 @@ class VolumeRenderer:
             acc_rgb = torch.zeros(ids.numel(), 3)
             acc_wt = torch.zeros(ids.numel())
             acc_w = torch.zeros(ids.numel())
-            acc_half = torch.zeros(ids.numel())
+            acc_half = torch.zeros(ids.numel(), 2)
             trans = torch.ones(ids.numel())
             ks = torch.arange(self.segment, dtype=torch.float32)
             k0 = 0
             while ids.numel():
                 trans = self._march_segment(k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w,
-                                            acc_half)
+                                            acc_half if crossings else None)
                 k0 += self.segment
                 keep = (trans > self.early_stop) & (n_steps > k0)
                 if bool(keep.all()):
@@ -147,14 +156,14 @@ class VolumeRenderer:
                     v[keep] for v in (ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w, acc_half))
         depth = torch.where(out_w > 0, out_wt / out_w.clamp(min=1e-12), torch.zeros_like(out_w))
         rgb = out_rgb + (1.0 - out_w).clamp(min=0.0)[:, None] * self.background(dirs)
-        return {"rgb": rgb.clamp(0.0, 1.0), "depth": depth, "surface_depth": out_half,
-                "opacity": out_w.clamp(0.0, 1.0)}
+        return {"rgb": rgb.clamp(0.0, 1.0), "depth": depth, "surface_depth": out_half[:, 0],
+                "fringe_depth": out_half[:, 1], "opacity": out_w.clamp(0.0, 1.0)}
 
     def _march_segment(self, k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w,
                        acc_half) -> torch.Tensor:
         """Advance the live rays by steps k0 .. k0 + segment - 1; updates the accumulators in place and
-        returns the transmittance after the segment. All inputs are per live ray (A, ...); ``acc_half`` holds
-        the distance where the accumulated opacity reached 0.5 (0 until it does)."""
+        returns the transmittance after the segment. All inputs are per live ray (A, ...); ``acc_half`` (A, 2)
+        holds the distances where the accumulated opacity reached 0.5 and FRINGE_OPACITY (0 until it does)."""
         k = k0 + ks  # (K,)
         n_k = k.shape[0]
         valid = k[None, :] < n_steps[:, None]  # (A, K)
@@ -192,12 +201,13 @@ class VolumeRenderer:
             trans_after = t_seg[:, -1] * (1.0 - alpha[:, -1])
         w = t_seg * alpha  # (A, K)
         after = acc_w[:, None] + torch.cumsum(w, dim=-1)              # accumulated opacity after each step
-        crossing = (after >= 0.5) & (after - w < 0.5)
-        rows_x, cols_x = torch.nonzero(crossing, as_tuple=True)
-        if rows_x.numel():
-            before = (after - w)[rows_x, cols_x]
-            frac = ((0.5 - before) / w[rows_x, cols_x].clamp(min=1e-12)).clamp(0.0, 1.0)
-            acc_half[rows_x] = t_mid[rows_x, cols_x] + (frac - 0.5) * dt[rows_x]
+        for slot, level in enumerate((0.5, FRINGE_OPACITY) if acc_half is not None else ()):
+            crossing = (after >= level) & (after - w < level)
+            rows_x, cols_x = torch.nonzero(crossing, as_tuple=True)
+            if rows_x.numel():
+                before = (after - w)[rows_x, cols_x]
+                frac = ((level - before) / w[rows_x, cols_x].clamp(min=1e-12)).clamp(0.0, 1.0)
+                acc_half[rows_x, slot] = t_mid[rows_x, cols_x] + (frac - 0.5) * dt[rows_x]
         acc_w += w.sum(-1)
         acc_wt += (w * t_mid).sum(-1)
         sflat = torch.nonzero((w > self.min_weight).reshape(-1)).flatten()
@@ -213,15 +223,17 @@ class VolumeRenderer:
 
     # ------------------------------------------------------------------ cameras
     @torch.no_grad()
-    def render(self, cameras, index: int) -> dict[str, np.ndarray]:
-        """Render camera ``index``: ``{"rgb": (H, W, 3), "depth", "surface_depth", "opacity": (H, W)}`` float32 numpy,
-        top row first; rgb in [0, 1] with the background composited."""
+    def render(self, cameras, index: int, *, crossings: bool = False) -> dict[str, np.ndarray]:
+        """Render camera ``index``: ``{"rgb": (H, W, 3), "depth", "surface_depth", "fringe_depth", "opacity":
+        (H, W)}`` float32 numpy, top row first; rgb in [0, 1] with the background composited (``crossings``: see
+        :meth:`render_rays`)."""
         origins, dirs = cameras.rays(index)
         h, w = cameras.height, cameras.width
-        out = self.render_rays(origins.reshape(-1, 3), dirs.reshape(-1, 3))
+        out = self.render_rays(origins.reshape(-1, 3), dirs.reshape(-1, 3), crossings=crossings)
         return {"rgb": out["rgb"].reshape(h, w, 3).numpy().astype(np.float32),
                 "depth": out["depth"].reshape(h, w).numpy().astype(np.float32),
                 "surface_depth": out["surface_depth"].reshape(h, w).numpy().astype(np.float32),
+                "fringe_depth": out["fringe_depth"].reshape(h, w).numpy().astype(np.float32),
                 "opacity": out["opacity"].reshape(h, w).numpy().astype(np.float32)}
 
     def time_frames(self, cameras, indices=None) -> dict[str, float]:
