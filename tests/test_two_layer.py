@@ -94,16 +94,9 @@ def ray_geometry(cams: Cameras, i: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def make_model(seed: int = 0) -> NeuralTextureModel:
-    torch.manual_seed(seed)
-    m = NeuralTextureModel(16, 16, feature_dim=8, num_codes=32, use_viewdir=True, use_facing=True)
-    with torch.no_grad():
-        m.texture.data.normal_(0.0, 1.0)
-        for layer in m.shader.layers:
-            layer.weight.mul_(2.0)
-            layer.bias.normal_(0.0, 0.3)
-    m.start_vq()
-    m.eval()
-    return m
+    from test_bake import make_model as random_model
+
+    return random_model(h=16, w=16, seed=seed, use_facing=True)
 
 
 # ---------------------------------------------------------------------------------------------- no GL needed
