@@ -17,13 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from scipy import ndimage
-
-def _max_depth_window(depth: np.ndarray, opacity: np.ndarray, opaque: float, radius: int) -> np.ndarray:
-    """(H, W) largest expected depth over the (2r+1)^2 window; +inf where any pixel of it is not opaque."""
-    d = np.where(opacity > opaque, depth, np.inf).astype(np.float64)
-    d[~np.isfinite(d)] = np.inf
-    return ndimage.maximum_filter(d, size=2 * radius + 1, mode="nearest")
 
 
 def fused_depth_sdf(origin, spacing, shape, cameras, depths: np.ndarray, opacities: np.ndarray, *,
@@ -38,8 +31,8 @@ def fused_depth_sdf(origin, spacing, shape, cameras, depths: np.ndarray, opaciti
 
     Args:
         origin: (3,) world position of lattice point (0, 0, 0); spacing: (3,) voxel size; shape: (R0, R1, R2).
-        cameras: ``Cameras`` of the views (N); depths, opacities: (N, H, W) the field's expected depth
-            (distance along the unit ray) and opacity.
+        cameras: ``Cameras`` of the views (N); depths, opacities: (N, H, W) the field's depth where each
+            pixel's opacity reaches ``opaque`` (distance along the unit ray; ``render.volume``) and opacity.
     Returns:
         ((R0, R1, R2) float32 SDF, stats {"fused_views", "fused_weighted_fraction", "fused_hidden_fraction"}).
     """
@@ -51,10 +44,10 @@ def fused_depth_sdf(origin, spacing, shape, cameras, depths: np.ndarray, opaciti
     weight = np.zeros(total, dtype=np.float32)
     behind = np.zeros(total, dtype=bool)
     axes = [origin[k] + spacing[k] * np.arange(shape[k]) for k in range(3)]
-    h, w = cameras.height, cameras.width
     t = float(truncation)
     for i in range(len(cameras)):
-        own = torch.from_numpy(_max_depth_window(depths[i], opacities[i], opaque, 0).reshape(-1))
+        # depth of the pixel's surface; +inf where it is not opaque (everything along that ray is free)
+        own = torch.from_numpy(np.where(opacities[i] > opaque, depths[i], np.inf).astype(np.float64).reshape(-1))
         for sel_np, pixel, dist in _projections(cameras, i, axes, shape, total, chunk):
             d = own[pixel]
             sd = d - dist                                     # +inf on background pixels
