@@ -18,12 +18,13 @@ from neuras_distill.geometry.mesh import MeshData
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0, use_facing=False):
+def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0, use_facing=False, mesh_layers=1):
     torch.manual_seed(seed)
-    m = NeuralTextureModel(h, w, feature_dim=dim, num_codes=k, use_viewdir=use_viewdir, use_facing=use_facing)
+    m = NeuralTextureModel(h, w, feature_dim=dim, num_codes=k, use_viewdir=use_viewdir, use_facing=use_facing,
+                           mesh_layers=mesh_layers)
     with torch.no_grad():
         m.texture.data.normal_(0.0, 1.0)
-        for layer in m.shader.layers:
+        for layer in (layer for shader in m.shaders for layer in shader.layers):
             layer.weight.mul_(2.0)
             layer.bias.normal_(0.0, 0.3)
     m.start_vq()

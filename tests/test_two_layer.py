@@ -93,10 +93,10 @@ def ray_geometry(cams: Cameras, i: int) -> tuple[np.ndarray, np.ndarray]:
     return perp, depth
 
 
-def make_model(seed: int = 0) -> NeuralTextureModel:
+def make_model(seed: int = 0, mesh_layers: int = 1) -> NeuralTextureModel:
     from test_bake import make_model as random_model
 
-    return random_model(h=16, w=16, seed=seed, use_facing=True)
+    return random_model(h=16, w=16, seed=seed, use_facing=True, mesh_layers=mesh_layers)
 
 
 # ---------------------------------------------------------------------------------------------- no GL needed
@@ -235,20 +235,29 @@ def test_single_layer_is_bit_for_bit_the_pre_layer_output(monkeypatch):
 # ---------------------------------------------------------------------------------------------- playback
 @gl
 @pytest.mark.gl
-def test_playback_of_a_two_layer_bundle_matches_the_torch_reference(tmp_path):
+@pytest.mark.parametrize("shaders", [1, 2])
+def test_playback_of_a_two_layer_bundle_matches_the_torch_reference(tmp_path, shaders):
     """(4) The saved and reloaded bundle plays, pixel for pixel, the torch forward pass on the two-layer
-    G-buffer (view direction and facing cosine on: the facing input reads the global face id's normal)."""
+    G-buffer (view direction and facing cosine on: the facing input reads the global face id's normal); with
+    a shader per layer, each layer's program runs its own MLP."""
     from neuras_distill.pipeline.evaluate import gl_torch_parity
     from neuras_distill.playback.rasterize import rasterize_gbuffer
     from neuras_distill.playback.renderer import BundleRenderer
     from neuras_distill.playback.shaders import VERTEX_SHADER
     from neuras_distill.playback.viewer import render_orbit_frames
 
-    m, mesh = make_model(), two_spheres()
+    m, mesh = make_model(mesh_layers=shaders), two_spheres()
     bg = np.float32([0.1, 0.2, 0.3])
     bundle = load_bundle(bake(m, mesh, bg, vertex_shader=VERTEX_SHADER).save(tmp_path / "b"))
+    assert bundle.manifest["shaders"] == shaders
     cams = cameras(3, 80)
-    one_layer = load_bundle(bake(m, two_spheres(False), bg).save(tmp_path / "one"))
+    if shaders == 2:         # the shell's own MLP: the core's MLP on every pixel (as one shader would) is far off
+        core_everywhere = bake(m, mesh, bg)
+        core_everywhere.fragment_shader = core_everywhere.fragment_shader.replace("MESH_LAYER == 1", "0")
+        with BundleRenderer(core_everywhere) as r:
+            wrong = gl_torch_parity(m, mesh, cams[0], r.render(cams, 0), bg, rasterize_gbuffer)
+        assert wrong < 40.0, wrong
+    one_layer = load_bundle(bake(make_model(), two_spheres(False), bg).save(tmp_path / "one"))
     with BundleRenderer(bundle) as r, BundleRenderer(one_layer) as plain:
         for i in range(len(cams)):
             image = r.render(cams, i)
@@ -306,3 +315,43 @@ def test_unwrap_keeps_the_layers_and_gives_the_shell_the_texels_of_its_layout():
     core, shell = out.layers()
     density = [layer.uv_area() / (4 * np.pi * r ** 2) for layer, r in ((core, R_CORE), (shell, R_SHELL))]
     assert density[1] / density[0] == pytest.approx(0.25, rel=0.15), density
+
+
+def test_a_shader_per_layer_picks_by_the_layer_column():
+    """view_inputs appends the layer (face id >= core_faces) after the facing cosine; the model runs the core's
+    MLP on layer-0 rows and the shell's on layer-1 rows, and fit trains both."""
+    import torch
+
+    from neuras_distill.neural.model import view_inputs
+    from neuras_distill.neural.train import fit
+
+    normals = np.float32([[0, 0, 1], [0, 1, 0], [1, 0, 0]])
+    dirs = np.float32([[[0, 0, -1], [0, 0, -1], [0, 0, -1], [0, 0, -1]]])
+    face_id = np.array([[-1, 0, 1, 2]])
+    inputs = view_inputs(dirs, face_id, normals, True, core_faces=2)
+    assert inputs.shape == (1, 4, 5)
+    np.testing.assert_array_equal(inputs[0, :, 3], [0, 1, 0, 0])            # |n . d|, 0 where uncovered
+    np.testing.assert_array_equal(inputs[0, :, 4], [0, 0, 0, 1])            # face 2 is the shell's
+
+    m = make_model(mesh_layers=2)
+    assert m.view_columns == 5
+    uv = torch.rand(6, 2)
+    d = torch.cat([torch.nn.functional.normalize(torch.randn(6, 3), dim=1), torch.rand(6, 1),
+                   torch.tensor([[0.0], [1.0], [0.0], [1.0], [1.0], [0.0]])], dim=1)
+    with torch.no_grad():
+        rgb, _ = m(uv, d)
+        f, _ = m.features(uv)
+        core, shell = m.shaders[0](f, d[:, :4]), m.shaders[1](f, d[:, :4])
+    expected = torch.where(d[:, 4:5] > 0.5, shell, core)
+    torch.testing.assert_close(rgb, expected)
+    assert (core - shell).abs().max() > 0.05                                 # the two MLPs differ
+
+    before = [p.detach().clone() for p in m.shaders[1].parameters()]
+    h = w = 8
+    gen = np.random.default_rng(0)
+    layer = np.zeros((1, h, w, 1), np.float32)
+    layer[:, :, w // 2:] = 1.0
+    view = np.concatenate([np.tile(np.float32([0, 0, -1, 1]), (1, h, w, 1)), layer], axis=-1)
+    fit(m, gen.random((1, h, w, 2), dtype=np.float32), np.ones((1, h, w), bool), view,
+        gen.random((1, h, w, 3), dtype=np.float32), steps=3, batch_patches=2, patch=4, progress=False)
+    assert any((p - q).abs().max() > 0 for p, q in zip(m.shaders[1].parameters(), before))

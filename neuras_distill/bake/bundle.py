@@ -4,7 +4,8 @@ Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature
 
     manifest.json        format, sizes, model settings, sha256 of every other file; ``core_faces``: null for a
                          single-layer mesh, else the number of core faces (faces[:core_faces] the core,
-                         the rest the shell; see ``MeshData.core_faces``); a missing key reads as null
+                         the rest the shell; see ``MeshData.core_faces``); a missing key reads as null;
+                         ``shaders``: 2 when the fragment shader holds one MLP per layer (picked by ``u_layer``)
     mesh.npz             float32 vertices (V,3), float32 uvs (V,2), int32 faces (F,3)
     feature_index.png    16-bit grayscale PNG of the (H, W) code indices (row 0 = v = 0, i.e. the image
                          looks upside down in a viewer), lossless
@@ -204,6 +205,9 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
     if mesh.uvs is None:
         raise BadInputError("bake: the mesh has no UVs; unwrap it before baking")
     core_faces = _core_faces(mesh.core_faces, mesh.num_faces, "bake")
+    if model.mesh_layers == 2 and core_faces is None:
+        raise BadInputError("bake: the model has a shader per mesh layer but the mesh has one layer "
+                            "(core_faces is None); bake it with the two-layer mesh it was trained on")
     index, cb = _baked_textures(model)
     k, dim = cb.shape[0], int(model.feature_dim)
     textures = {"u_index": index, "u_codebook": cb}
@@ -214,6 +218,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
         "use_vq": bool(model.use_vq), "use_viewdir": bool(model.use_viewdir),
         "use_facing": bool(model.use_facing),
         "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
+        "shaders": int(model.mesh_layers),
         "mesh_vertices": int(mesh.num_vertices), "mesh_faces": int(mesh.num_faces),
         "core_faces": core_faces,
         "float16_feature_bytes": float16_feature_nbytes(model.tex_height, model.tex_width, dim),

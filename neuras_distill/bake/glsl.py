@@ -9,6 +9,8 @@ Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward 
   were the second largest cost per pixel on llvmpipe);
 - ``u_codebook`` (RGBA32F, width ceil(D/4), height K): ``texelFetch(u_codebook, ivec2(c, k), 0)`` holds
   features 4c..4c+3 of code k (zero padded);
+- with ``model.mesh_layers`` 2, one MLP per mesh layer behind ``#if MESH_LAYER`` (:func:`shader_variant`: a
+  player compiles the source once per layer and draws each layer with its own program);
 - the MLP unrolled as ``mat4 * vec4`` blocks with the weights as float literals (9 significant digits, so every
   literal is exactly the float32 weight); all-zero blocks are skipped; ReLU = max(x, 0), sigmoid = 1/(1+exp(-x));
 - the view direction ``normalize(v_world - u_cam_pos)`` only when the model uses it or the facing cosine
@@ -24,6 +26,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from ..playback.shaders import CORE_VARIANT, SHELL_VARIANT
 
 
 def glsl_float(x: float) -> str:
@@ -104,6 +108,21 @@ def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, inde
     return names
 
 
+def _mlp_lines(out: list[str], layers: list[tuple], in_names: list[str], dim: int, c4: int, view_dim: int,
+               indent: str) -> str:
+    """Append one MLP shader's layers (``MLPShader.weights()``) reading ``in_names`` (the ``c4`` feature vec4s,
+    then the view vec4) and return the GLSL expression of its rgb."""
+    w0, _ = layers[0]
+    cols = np.zeros((w0.shape[0], 4 * len(in_names)), np.float32)     # features padded to 4*c4, then the view
+    cols[:, :dim] = w0[:, :dim]
+    cols[:, 4 * c4:4 * c4 + view_dim] = w0[:, dim:dim + view_dim]
+    names = in_names
+    for n, (w, b) in enumerate(layers):
+        names = dense_lines(out, cols if n == 0 else w, b, names, f"a{n + 1}",
+                            "none" if n == len(layers) - 1 else "relu", indent)
+    return f"1.0 / (1.0 + exp(-{names[0]}.xyz))"
+
+
 def generate_fragment_shader(model) -> str:
     """GLSL #version 330 core fragment shader for a trained ``NeuralTextureModel`` (see module docstring).
 
@@ -114,17 +133,20 @@ def generate_fragment_shader(model) -> str:
     c4 = (dim + 3) // 4
     use_dir = bool(model.shader.use_viewdir)
     use_facing = bool(model.use_facing)
-    layers = model.shader.weights()
+    layers = model.shader.weights()      # every shader of the model has the same sizes
 
     out: list[str] = [
         "#version 400 core",
         f"// NeuRas neural texture shader: {tex_w}x{tex_h} atlas, D={dim}, MLP "
         + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3" + (", view-dependent" if use_dir else "")
-        + (", facing" if use_facing else ""),
+        + (", facing" if use_facing else "") + (", one MLP per mesh layer" if model.mesh_layers == 2 else ""),
         "in vec2 v_uv;",
     ]
     if use_dir or use_facing:
         out += ["in vec3 v_world;", "uniform vec3 u_cam_pos;"]
+    if model.mesh_layers == 2:
+        out += ["#ifndef MESH_LAYER", f"#define MESH_LAYER {CORE_VARIANT}  // the shell's program: shader_variant(source, 1)",
+                "#endif"]
     out += [
         "uniform usampler2D u_index;",
         "uniform sampler2D u_codebook;",
@@ -143,18 +165,18 @@ def generate_fragment_shader(model) -> str:
         out.append("    vec4 a0_d = vec4(normalize(v_world - u_cam_pos), 0.0);")
         in_names.append("a0_d")
 
-    # first layer's input columns: features 0..D-1 padded to 4*c4, then the direction padded to 4
-    w0, _ = layers[0]
-    cols = np.zeros((w0.shape[0], 4 * len(in_names)), np.float32)
-    cols[:, :dim] = w0[:, :dim]
     view_dim = (3 if use_dir else 0) + (1 if use_facing else 0)
-    cols[:, 4 * c4:4 * c4 + view_dim] = w0[:, dim:dim + view_dim]
-    for n, (w, b) in enumerate(layers):
-        if n == 0:
-            w = cols
-        in_names = dense_lines(out, w, b, in_names, f"a{n + 1}", "none" if n == len(layers) - 1 else "relu", "    ")
+    if model.mesh_layers == 1:
+        rgb = _mlp_lines(out, model.shader.weights(), in_names, dim, c4, view_dim, "    ")
+        out.append(f"    vec3 rgb = {rgb};")
+    else:       # a two-layer mesh: one program per layer, MESH_LAYER picks the shader at compile time
+        out.append("    vec3 rgb;")
+        for directive, shader in ((f"#if MESH_LAYER == {SHELL_VARIANT}", model.shaders[1]), ("#else", model.shaders[0])):
+            out.append(directive)
+            rgb = _mlp_lines(out, shader.weights(), in_names, dim, c4, view_dim, "    ")
+            out.append(f"    rgb = {rgb};")
+        out.append("#endif")
     out += [
-        f"    vec3 rgb = 1.0 / (1.0 + exp(-{in_names[0]}.xyz));",
         "    f_color = vec4(rgb, 1.0);",
         "}",
         "",

@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from ..render.volume import FRINGE_OPACITY
+from .colour_level import termination_points
 from .depth_fusion import fused_depth_sdf
 from .cleanup import clean_mesh, decimate, smooth_rough
 from .marching import marching_cubes_field
@@ -40,7 +41,7 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
                  texture_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                  density_level: float | None = None, max_unwrap_faces: int = 200_000,
                  choose_resolution=None, cull_margin_deg: float = 15.0, field_opacity=None,
-                 field_depth=None) -> MeshData:
+                 field_depth=None, core_level: str = "surface") -> MeshData:
     """Extract, simplify, cull and unwrap the surface of ``field``.
 
     Args:
@@ -61,6 +62,8 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
             ``unwrap.UnwrapFailed``) is then meshed again from the fused surface depths
             (``depth_fusion.fused_depth_sdf``), its fringe shell from the fused fringe depths;
             ``stats['level_set_unwrap_failure']`` says why.
+        core_level: "surface", or "colour": with ``field_opacity`` and ``field_depth``, a fringed density
+            field's core sits where its training rays terminate (``colour_level``), not at the surface level.
         choose_resolution: optional callable (unwrapped MeshData) -> atlas side; the mesh is first unwrapped
             at ``texture_resolution``, then again at the chosen side when it differs (the padding is laid out
             in texels of the final atlas). ``stats['uv_resolution']`` holds the side used.
@@ -81,9 +84,11 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
     if field_opacity is not None:
         def fringe_check(candidate: MeshData) -> float:
             return missed_opaque_fraction(candidate, train_cameras, field_opacity)
-    fusion = None
+    fusion = termination = None
     if field_depth is not None and getattr(field, "kind", None) == "density":
         surface_depths, fringe_depths, opacities = field_depth
+        if fringe_check is not None and core_level == "colour":
+            termination = termination_points(train_cameras, surface_depths, opacities)
 
         def fusion(spec, fringe: bool = False):
             depths, opaque = (fringe_depths, FRINGE_OPACITY) if fringe else (surface_depths, 0.5)
@@ -94,7 +99,7 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
         timings: dict = {}
         t = time.perf_counter()
         mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check,
-                                    depth_fusion=depth_fusion)
+                                    depth_fusion=depth_fusion, termination=termination)
         timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling (and the fusion)
         return _finish(mesh, train_cameras, timings, face_budget=face_budget, cull_unseen=cull_unseen,
                        cull_margin_deg=cull_margin_deg, texture_resolution=texture_resolution,

@@ -45,6 +45,7 @@ from scipy import ndimage
 from skimage import measure
 
 from ..errors import BadInputError
+from .colour_level import colour_level
 from .grid import field_outside_value, grid_spec, sample_grid
 from .mesh import MeshData
 
@@ -216,7 +217,7 @@ def mesh_handles(mesh: MeshData) -> int:
 def marching_cubes_field(field, resolution: int | Sequence[int], level: float | None = None, *,
                          density_step: float | None = None, chunk_points: int = 1 << 20,
                          fringe_check=None, fringe_tolerance: float = FRINGE_MISS_TOLERANCE,
-                         depth_fusion=None) -> MeshData:
+                         depth_fusion=None, termination=None) -> MeshData:
     """Mesh the surface of ``field`` (Field protocol: kind, aabb, geometry) in world coordinates.
 
     Args:
@@ -233,6 +234,11 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
             is then meshed from the surface fusion instead of its level set (``geometry.extract`` does so when
             the level set cannot be unwrapped), and its fringe shell candidates are the fringe fusion's level 0
             and outward offsets. ``stats['mc_density_handles']`` counts the level set's handles either way.
+        termination: optional ((P, 3) points, (P, 3) directions) where the training rays of opaque pixels
+            terminate (``colour_level.termination_points``). With ``fringe_check`` on a density field, the core
+            then sits at the level the field's colour comes from (``colour_level.colour_level``) when that lies
+            inside the surface level, and the shell encloses the fringe from there; kept only when the result
+            misses no more opaque pixels than the surface-level route (``stats['mc_colour_level']``).
 
     Returns:
         MeshData (vertices (V, 3) float32 world, faces (F, 3) int32 CCW from outside; two layers, core and
@@ -273,8 +279,26 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
             if fringe_check is not None:
                 shell_grid = depth_fusion(spec, fringe=True)[0]
     if fringe_check is not None:
-        mesh, level = _enclose_fringe(grid, spec, kind, float(level), mesh, fringe_check, fringe_tolerance, stats,
-                                      shell_grid=shell_grid)
+        core = None
+        if kind == "density" and termination is not None and shell_grid is None:
+            core = _colour_core(grid, spec, float(level), termination, stats)
+        if core is not None:
+            trial_stats: dict = {}
+            core_mesh, shell_level = _enclose_fringe(
+                grid, spec, kind, core, marching_cubes_grid(grid, spec.origin, spec.spacing, kind, core),
+                fringe_check, fringe_tolerance, trial_stats,
+                levels=[core] + outward_levels(kind, float(level), float(spec.spacing.max())))
+            if trial_stats["mc_fringe_missed"] > fringe_tolerance:       # compare with the surface-level route
+                plain, plain_level = _enclose_fringe(grid, spec, kind, float(level), mesh, fringe_check,
+                                                     fringe_tolerance, stats)
+                if stats["mc_fringe_missed"] < trial_stats["mc_fringe_missed"]:
+                    core_mesh, shell_level, trial_stats = plain, plain_level, {}
+                    stats["mc_colour_level_rejected"] = "its shell missed more of the field's opaque pixels"
+            stats.update(trial_stats)
+            mesh, level = core_mesh, shell_level
+        else:
+            mesh, level = _enclose_fringe(grid, spec, kind, float(level), mesh, fringe_check, fringe_tolerance,
+                                          stats, shell_grid=shell_grid)
     stats.update(mesh.stats, mc_folded_fraction=folded_fraction(mesh.vertices, mesh.faces))
     stats.update(mc_level=float(level), mc_faces=mesh.num_faces, mc_vertices=mesh.num_vertices,
                  mc_seconds=time.perf_counter() - t0, voxel_size=float(spec.spacing.max()))
@@ -282,8 +306,29 @@ def marching_cubes_field(field, resolution: int | Sequence[int], level: float | 
     return mesh
 
 
+#: The colour level must lie at least this factor inside the surface level to make a core of its own.
+COLOUR_LEVEL_MIN_RATIO = 1.1
+
+
+def _colour_core(grid: np.ndarray, spec, level: float, termination, stats: dict) -> float | None:
+    """The density level the field's colour comes from (``colour_level.colour_level``), when it lies inside the
+    surface ``level`` by at least :data:`COLOUR_LEVEL_MIN_RATIO` and below half the peak density; else None.
+    Records ``mc_colour_level`` (the level found), ``mc_colour_level_points`` and ``mc_colour_level_used``."""
+    points, dirs = termination
+    if len(points) == 0:
+        return None
+    eps = np.float32(1e-3 * level)
+    found = colour_level(np.log(np.maximum(grid, 0.0) + eps), spec.origin, spec.spacing, points, dirs)
+    if found is None:
+        return None
+    core = float(min(math.exp(found["log_level"]), 0.5 * float(grid.max())))
+    used = core > COLOUR_LEVEL_MIN_RATIO * level
+    stats.update(mc_colour_level=core, mc_colour_level_points=found["points"], mc_colour_level_used=used)
+    return core if used else None
+
+
 def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, tolerance: float,
-                    stats: dict, shell_grid=None) -> tuple[MeshData, float]:
+                    stats: dict, shell_grid=None, levels=None) -> tuple[MeshData, float]:
     """The surface mesh, plus as its shell (a two-layer ``MeshData``, see ``MeshData.core_faces``) the tightest
     mesh among :func:`outward_levels` that misses at most ``tolerance`` of the opaque pixels; when none does,
     the least-missing one if it misses at most half of what the surface mesh misses, else no shell (chasing a
@@ -293,9 +338,9 @@ def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, 
     Two layers, not the shell alone: a single mesh at the shell level put the texture in front of the surface,
     so the interior colour had to be learnt with parallax through the fringe (the gradient ball's interior
     showed a mosaic of patches); the core keeps the surface where it is and the shell only draws outside the
-    core's silhouette."""
+    core's silhouette. ``levels``: the candidates, ``level`` first (default :func:`outward_levels`)."""
     voxel = float(spec.spacing.max())
-    levels = outward_levels(kind, level, voxel)
+    levels = outward_levels(kind, level, voxel) if levels is None else levels
     if shell_grid is not None:       # a fused fringe SDF: its own zero level first, then outward offsets
         grid, levels = shell_grid, [level] + outward_levels("sdf", 0.0, voxel)
     best = (check(mesh), 0, mesh)
@@ -322,7 +367,7 @@ def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, 
     elif kind == "sdf":
         stats["mc_fringe_offset_voxels"] = (levels[index] - level) / voxel
     else:
-        stats["mc_fringe_divisor"] = 2.0 ** index
+        stats["mc_fringe_divisor"] = level / levels[index]
     return mesh, levels[index]
 
 

@@ -26,9 +26,11 @@ from neuras_distill.neural.vq import VectorQuantizer
 from neuras_distill.errors import BadInputError
 
 
-def view_inputs(dirs, face_id, face_normals, use_facing: bool) -> np.ndarray:
-    """The MLP's view input per pixel: (..., 3) unit directions, or with ``use_facing`` (..., 4) with
-    ``|n . d|`` appended (n: the normal of the pixel's face; 0 where no face covers the pixel).
+def view_inputs(dirs, face_id, face_normals, use_facing: bool, core_faces: int | None = None) -> np.ndarray:
+    """The MLP's view input per pixel: (..., 3) unit directions; with ``use_facing`` (..., 4) with ``|n . d|``
+    appended (n: the normal of the pixel's face; 0 where no face covers the pixel); with ``core_faces`` (a
+    two-layer mesh, ``MeshData.core_faces``) one more column, the pixel's mesh layer (0 core, 1 shell), which
+    picks the shader (:class:`NeuralTextureModel` with ``mesh_layers=2``).
 
     Args:
         dirs: (..., 3) float32 unit view directions (camera to surface).
@@ -36,14 +38,17 @@ def view_inputs(dirs, face_id, face_normals, use_facing: bool) -> np.ndarray:
         face_normals: (F, 3) unit face normals (``MeshData.face_normals()``), in the frame of ``dirs``.
     """
     dirs = np.asarray(dirs, dtype=np.float32)
-    if not use_facing:
-        return dirs
     face_id = np.asarray(face_id)
-    facing = np.zeros(face_id.shape, np.float32)
-    covered = face_id >= 0
-    facing[covered] = np.abs(np.einsum("ij,ij->i", np.asarray(face_normals, np.float32)[face_id[covered]],
-                                       dirs[covered]))
-    return np.concatenate([dirs, facing[..., None]], axis=-1)
+    columns = [dirs]
+    if use_facing:
+        facing = np.zeros(face_id.shape, np.float32)
+        covered = face_id >= 0
+        facing[covered] = np.abs(np.einsum("ij,ij->i", np.asarray(face_normals, np.float32)[face_id[covered]],
+                                           dirs[covered]))
+        columns.append(facing[..., None])
+    if core_faces is not None:
+        columns.append((face_id >= int(core_faces)).astype(np.float32)[..., None])
+    return columns[0] if len(columns) == 1 else np.concatenate(columns, axis=-1)
 
 
 class NeuralTextureModel(nn.Module):
@@ -58,19 +63,28 @@ class NeuralTextureModel(nn.Module):
         use_facing: also feed |n . d| (``MLPShader``); then ``dirs`` carry 4 columns (direction, facing).
         use_vq: quantize features (required to bake atlases with more than 65535 texels).
         sparse_grad: texture gradients as sparse tensors (train the texture with SparseAdam).
+        mesh_layers: 2 for a two-layer mesh (``MeshData.core_faces``): the core and the shell get a shader each
+            (same size and inputs), picked per pixel by the layer column :func:`view_inputs` appends to ``dirs``.
+            One shader for both cost the gradient ball's interior 4.6 dB on training views (41.3 vs 45.9 dB)
+            and its silhouette band 2.9 dB: the shell's fade (surface colour to background with the angle) took
+            the shared MLP's capacity. Both run at the same per-pixel cost (a uniform branch in GLSL).
     """
 
     def __init__(self, tex_height: int, tex_width: int, feature_dim: int = 8, num_codes: int = 1024,
                  hidden: int = 32, num_layers: int = 3, use_viewdir: bool = True, use_vq: bool = True,
-                 sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False) -> None:
+                 sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False,
+                 mesh_layers: int = 1) -> None:
         super().__init__()
         self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
         self.hidden, self.num_layers = int(hidden), int(num_layers)
         self.use_viewdir, self.use_vq, self.sparse_grad = bool(use_viewdir), bool(use_vq), bool(sparse_grad)
         self.texture = NeuralTexture(self.tex_height, self.tex_width, self.feature_dim)
         self.vq = VectorQuantizer(num_codes, self.feature_dim, dead_after=dead_after) if self.use_vq else None
-        self.shader = MLPShader(self.feature_dim, hidden=hidden, num_layers=num_layers, use_viewdir=use_viewdir,
-                                use_facing=use_facing)
+        if mesh_layers not in (1, 2):
+            raise ValueError(f"mesh_layers must be 1 or 2, got {mesh_layers}")
+        self.shaders = nn.ModuleList(MLPShader(self.feature_dim, hidden=hidden, num_layers=num_layers,
+                                               use_viewdir=use_viewdir, use_facing=use_facing)
+                                     for _ in range(mesh_layers))
         self.register_buffer("vq_active", torch.tensor(False))
         self.register_buffer("touched", torch.zeros(self.tex_height * self.tex_width, dtype=torch.bool),
                              persistent=False)
@@ -91,6 +105,20 @@ class NeuralTextureModel(nn.Module):
         owned = torch.zeros(self.vq.num_codes, dtype=torch.bool, device=self.texture.data.device)
         owned[self.trained_texel_codes()] = True
         return owned
+
+    @property
+    def shader(self) -> MLPShader:
+        """The (core's) MLP shader."""
+        return self.shaders[0]
+
+    @property
+    def mesh_layers(self) -> int:
+        return len(self.shaders)
+
+    @property
+    def view_columns(self) -> int:
+        """Columns of ``dirs`` (:func:`view_inputs`): 3 directions, + facing, + the layer with two layers."""
+        return 3 + int(self.use_facing) + int(self.mesh_layers == 2)
 
     @property
     def use_facing(self) -> bool:
@@ -127,10 +155,17 @@ class NeuralTextureModel(nn.Module):
         return f, aux
 
     def forward(self, uv: torch.Tensor, dirs: torch.Tensor | None = None) -> tuple[torch.Tensor, dict]:
-        """uv (B, 2), dirs (B, 3) unit view directions ((B, 4) with the facing cosine) -> rgb (B, 3) in (0, 1),
+        """uv (B, 2), dirs (B, :attr:`view_columns`) (:func:`view_inputs`) -> rgb (B, 3) in (0, 1),
         aux {"vq_loss", "indices"}."""
         f, aux = self.features(uv)
-        return self.shader(f, dirs), aux
+        if self.mesh_layers == 1:
+            return self.shader(f, dirs), aux
+        shell = dirs[:, -1] > 0.5
+        rgb = torch.empty(f.shape[0], 3, dtype=f.dtype, device=f.device)
+        for layer, rows in ((0, torch.nonzero(~shell).flatten()), (1, torch.nonzero(shell).flatten())):
+            if rows.numel():
+                rgb = rgb.index_put((rows,), self.shaders[layer](f[rows], dirs[rows, :-1]))
+        return rgb, aux
 
     # ------------------------------------------------------------------ training helpers
     @torch.no_grad()
@@ -207,8 +242,7 @@ class NeuralTextureModel(nn.Module):
         """Torch reference render of one G-buffer (for parity tests and evaluation).
 
         Args:
-            uv: (H, W, 2) float32; coverage: (H, W) bool; dirs: (H, W, 3) unit view directions ((H, W, 4) with
-            the facing cosine, see :func:`view_inputs`);
+            uv: (H, W, 2) float32; coverage: (H, W) bool; dirs: (H, W, :attr:`view_columns`) (:func:`view_inputs`);
             background: (3,) colour of uncovered pixels. numpy arrays or tensors.
         Returns:
             (H, W, 3) float32 numpy image.

@@ -95,8 +95,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
 
     Args:
         uv: (N, H, W, 2) float32 G-buffer texture coordinates; coverage: (N, H, W) bool;
-        dirs: (N, H, W, 3) float32 unit view directions ((N, H, W, 4) with the facing cosine when the model's
-            shader uses it, ``neural.model.view_inputs``); targets: (N, H, W, 3) float32 teacher colours.
+        dirs: (N, H, W, C) float32 view inputs, C = ``model.view_columns`` (unit directions, the facing cosine
+            when the shader uses it, the mesh layer with two layers: ``neural.model.view_inputs``); targets: (N, H, W, 3) float32 teacher colours.
         steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
         lr: MLP and codebook learning rate; texture_lr: texture learning rate (default 3 * lr).
         batch_patches, patch: patches per step and their side in pixels.
@@ -115,7 +115,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     cov = _as_tensor(coverage, torch.bool, "coverage", ())
     lead = tuple(cov.shape)
     uv_t = _as_tensor(uv, torch.float32, "uv", (2,), lead)
-    dirs_t = _as_tensor(dirs, torch.float32, "dirs", (4,) if model.use_facing else (3,), lead)
+    dirs_t = _as_tensor(dirs, torch.float32, "dirs", (model.view_columns,), lead)
     tgt_t = _as_tensor(targets, torch.float32, "targets", (3,), lead)
     n, h, w = lead
     cov_f = cov.reshape(-1)
@@ -139,7 +139,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     texture_lr = 3.0 * lr if texture_lr is None else float(texture_lr)
 
     tex_params = [model.texture.data]
-    dense_groups = [{"params": list(model.shader.parameters()), "lr": lr}]
+    dense_groups = [{"params": list(model.shaders.parameters()), "lr": lr}]
     if model.vq is not None:
         dense_groups.append({"params": [model.vq.codebook], "lr": lr})
     models = [model]

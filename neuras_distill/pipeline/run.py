@@ -359,7 +359,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                         cull_margin_deg=cfg.geometry.cull_margin_deg,
                         field_opacity=train_opacity if enclose else None,
                         field_depth=(np.stack(teacher_views.surface_depths), np.stack(teacher_views.fringe_depths),
-                                     train_opacity))
+                                     train_opacity),
+                        core_level=cfg.geometry.core_level)
     tex_res = int(mesh.stats["uv_resolution"])
     charts = int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
@@ -395,7 +396,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                           mesh.stats, core_faces=mesh.core_faces)
     gbuffer = rasterize_gbuffer(local_mesh, shift_cameras(train, origin), cull_back_faces=cfg.geometry.cull_back_faces)
     dirs = view_inputs(np.stack([train.rays(i)[1].numpy() for i in range(len(train))]), gbuffer.face_id,
-                       local_mesh.face_normals(), use_facing)
+                       local_mesh.face_normals(), use_facing, local_mesh.core_faces)
     use_skybox, sky_reason = _resolve_skyboxes(field, cfg, gbuffer, left_out)
     skybox = None
     sb = cfg.skybox
@@ -418,7 +419,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                                                         if plan["time_budget_s"] else ""))
     model = NeuralTextureModel(tex_res, tex_res, feature_dim=t.feature_dim, num_codes=t.num_codes,
                                hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir,
-                               use_facing=use_facing)
+                               use_facing=use_facing, mesh_layers=len(local_mesh.layers()))
     train_log = fit(model, gbuffer.uv, gbuffer.coverage, dirs, targets, steps=plan["steps"],
                     lr=cfg.train.lr, batch_patches=cfg.train.batch_patches, patch=cfg.train.patch,
                     ssim_weight=cfg.train.ssim_weight, vq_warmup=cfg.train.vq_warmup,

@@ -29,7 +29,7 @@ from ..errors import BadInputError
 from .context import get_context
 from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for, shift_cameras
 from .rasterize import _check_mesh, draw_mesh, mesh_layers, mesh_vertex_array, set_raster_state
-from .shaders import VERTEX_SHADER
+from .shaders import VERTEX_SHADER, shader_variant
 
 
 def _texture_layout(name: str, arr: np.ndarray) -> tuple[int, str]:
@@ -68,11 +68,17 @@ class BundleRenderer:
         self._fbo_cache: dict = {}
         self._resources: list = []
         self._textures: list = []
+        self._layers = mesh_layers(mesh)
+        # one program per mesh layer (a two-layer bundle's shader holds a variant per layer, glsl.shader_variant)
+        self.programs: dict = {}
         try:
-            self.program = self.ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=bundle.fragment_shader)
+            for layer in sorted({max(0, int(layer)) for layer, _, _ in self._layers} or {0}):
+                self.programs[layer] = self.ctx.program(
+                    vertex_shader=VERTEX_SHADER, fragment_shader=shader_variant(bundle.fragment_shader, layer))
         except moderngl.Error as exc:
             raise BadInputError(f"the bundle's fragment shader does not compile or link: {exc}") from None
-        self._resources.append(self.program)
+        self.program = self.programs[min(self.programs)]
+        self._resources += list(self.programs.values())
         self.origin = np.asarray(getattr(bundle, "origin", np.zeros(3)), np.float64).reshape(3)
         self.sky_program = self.sky_vao = None
         self.sky_center = None
@@ -87,11 +93,12 @@ class BundleRenderer:
             self.sky_vao = self.ctx.vertex_array(self.sky_program, [])
             self._resources += [self.sky_program, self.sky_vao]
             self.sky_center = np.asarray(bundle.manifest["skybox"]["center"], np.float64).reshape(3)
-        self.vao = None
-        self._layers = mesh_layers(mesh)
-        if mesh.num_faces:
-            self.vao, bufs = mesh_vertex_array(self.ctx, self.program, mesh)
-            self._resources += [self.vao, *bufs]
+        self.vaos: dict = {}
+        for layer, program in self.programs.items():
+            if mesh.num_faces:
+                self.vaos[layer], bufs = mesh_vertex_array(self.ctx, program, mesh)
+                self._resources += [self.vaos[layer], *bufs]
+        self.vao = self.vaos.get(min(self.programs))
         max_size = int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 0) or 0)
         for unit, (name, arr) in enumerate(sorted(bundle.textures.items())):
             arr = np.ascontiguousarray(arr)
@@ -104,7 +111,7 @@ class BundleRenderer:
             tex.repeat_x = tex.repeat_y = False
             self._resources.append(tex)
             self._textures.append((unit, tex))
-            for program in (self.program, self.sky_program):
+            for program in (*self.programs.values(), self.sky_program):
                 if program is not None and name in program:
                     program[name].value = unit
 
@@ -121,10 +128,12 @@ class BundleRenderer:
     def _set_camera(self, cameras, i: int) -> None:
         """``cameras`` are already in the bundle's frame (see :meth:`_draw`)."""
         near, far = camera_near_far(self._bounds, cameras, i)
-        if "u_mvp" in self.program:
-            self.program["u_mvp"].write(gl_matrix(mvp_for(cameras, i, near, far)))
-        if "u_cam_pos" in self.program:
-            self.program["u_cam_pos"].value = tuple(float(x) for x in cameras.c2w[i, :3, 3])
+        mvp = gl_matrix(mvp_for(cameras, i, near, far))
+        for program in self.programs.values():
+            if "u_mvp" in program:
+                program["u_mvp"].write(mvp)
+            if "u_cam_pos" in program:
+                program["u_cam_pos"].value = tuple(float(x) for x in cameras.c2w[i, :3, 3])
 
     @property
     def cull_back_faces(self) -> bool:
@@ -163,7 +172,9 @@ class BundleRenderer:
         set_raster_state(self.ctx, self.cull_back_faces)
         if self.vao is not None:
             self._set_camera(shift_cameras(cameras, self.origin), i)
-            draw_mesh(self.vao, self.program, self._layers)
+            for call in self._layers:               # core first: its pixels then fail the shell's depth test
+                layer = max(0, int(call[0]))
+                draw_mesh(self.vaos[layer], self.programs[layer], [call])
         if skybox and self.sky_program is not None:
             self._draw_sky(cameras, i)         # after the mesh: only the pixels it left empty are shaded
         return fbo

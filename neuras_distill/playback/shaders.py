@@ -13,6 +13,9 @@ depth range, ``z' = 0.5 z + (u_layer - 0.5) w``: core NDC z in [-1, 0], shell in
 untouched: coverage and perspective-correct interpolation are those of the plain projection). A single-layer
 mesh is drawn with ``u_layer`` = -1: depth exactly as projected, bit-for-bit the pre-layer output. (A player that
 never sets the uniform gets 0, the core range: still correct for a single-layer mesh.)
+
+A two-layer bundle's fragment shader holds one MLP per layer behind ``#if MESH_LAYER == 1`` (shell) / ``#else``
+(core): a player compiles it once per layer (:func:`shader_variant`) and draws each layer with its program.
 """
 
 VERTEX_SHADER = """#version 330
@@ -50,3 +53,18 @@ void main() {
     f_depth = -(dot(u_view_z.xyz, v_world) + u_view_z.w);
 }
 """
+
+
+#: ``MESH_LAYER`` values of a two-layer bundle's fragment shader (the default, without a define, is the core).
+CORE_VARIANT, SHELL_VARIANT = 0, 1
+
+
+def shader_variant(source: str, mesh_layer: int) -> str:
+    """The fragment shader ``source`` compiled for one mesh layer: ``#define MESH_LAYER <mesh_layer>`` right
+    after its ``#version`` line. A two-layer bundle's shader holds one MLP per layer behind ``#if MESH_LAYER``
+    (a branch on a uniform instead cost 40% of the frame time on llvmpipe: 55.6 vs 39.8 ms); a player builds
+    one program per layer. Sources without the switch are returned unchanged."""
+    if "MESH_LAYER" not in source:
+        return source
+    first, rest = source.split("\n", 1)
+    return f"{first}\n#define MESH_LAYER {int(mesh_layer)}\n{rest}"
