@@ -118,10 +118,12 @@ uniform vec2 u_uv0;
 uniform vec2 u_uv_scale;
 out vec2 v_uv;
 out vec3 v_world;
+out vec3 v_normal;
 void main() {
     vec2 t = in_pos * 0.5 + 0.5;
     v_uv = u_uv0 + t * u_uv_scale;
     v_world = vec3(2.0 * t.x - 1.0, 0.0, 2.0 * t.y - 1.0);
+    v_normal = vec3(0.3 * (2.0 * t.x - 1.0), 1.0, 0.2 * (2.0 * t.y - 1.0));  // linear: interpolated exactly
     gl_Position = vec4(in_pos, 0.0, 1.0);
 }
 """
@@ -181,8 +183,10 @@ def test_glsl_parity_with_torch(use_viewdir, dim, use_facing):
     world = np.stack([2 * tx - 1, np.zeros_like(tx), 2 * ty - 1], -1)
     d = world - cam
     dirs = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
-    if use_facing:              # the quad lies in the plane y = 0: |n . d| = |d_y|
-        dirs = np.concatenate([dirs, np.abs(dirs[..., 1:2])], axis=-1)
+    if use_facing:              # the shading normal varies over the quad (VERT's v_normal, normalized per pixel)
+        n = np.stack([0.3 * (2 * tx - 1), np.ones_like(tx), 0.2 * (2 * ty - 1)], -1)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        dirs = np.concatenate([dirs, np.abs((n * dirs).sum(-1, keepdims=True))], axis=-1).astype(np.float32)
         no_facing = m.render_gbuffer(uv, np.ones((res, res), bool), np.concatenate([dirs[..., :3], 0 * dirs[..., 3:]], -1),
                                      np.zeros(3))
         assert np.abs(no_facing - gl).max() > 1e-2       # the facing input changes the picture

@@ -426,3 +426,31 @@ def test_rough_surfaces_are_measured_and_smoothed():
     # Taubin keeps the volume: nothing shrinks or disappears
     v0, v1 = signed_volume(rough.vertices, rough.faces), signed_volume(done.vertices, done.faces)
     assert v1 == pytest.approx(v0, rel=0.02)
+
+
+def test_vertex_normals_are_smooth_across_uv_seams():
+    """Vertex normals: the area-weighted face normals around a position, shared by the copies a UV seam makes
+    (a cube corner split into three chart copies gets one normal, the diagonal), unit length; on a fine
+    sphere they point along the radius."""
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], np.float32)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    vertices, faces = [], []
+    for quad in quads:                                   # every side its own chart: corners duplicated
+        base = len(vertices)
+        vertices += [corners[i] for i in quad]
+        faces += [(base, base + 1, base + 2), (base, base + 2, base + 3)]
+    cube = MeshData(np.array(vertices), np.array(faces))
+    assert cube.num_vertices == 24
+    normals = cube.vertex_normals()
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+    outward = cube.vertices - 0.5
+    cos = np.einsum("ij,ij->i", normals, outward / np.linalg.norm(outward, axis=1, keepdims=True))
+    assert cos.min() > 0.9                               # near the corner's diagonal (area weights per triangle)
+    for corner in corners:                               # ... and one normal for all copies of a corner
+        copies = normals[np.all(cube.vertices == corner, axis=1)]
+        assert len(copies) == 3 and np.ptp(copies, axis=0).max() == 0
+    trimesh = pytest.importorskip("trimesh")
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    s = MeshData(sphere.vertices, sphere.faces)
+    radial = s.vertices / np.linalg.norm(s.vertices, axis=1, keepdims=True)
+    assert np.einsum("ij,ij->i", s.vertex_normals(), radial).min() > 0.999

@@ -212,7 +212,9 @@ def test_single_layer_is_bit_for_bit_the_pre_layer_output(monkeypatch):
     meshes = [two_spheres(False), b]
     cams = cameras(4, 96)
     new = [rasterize.rasterize_gbuffer(m, cams, cull_back_faces=cull) for m in meshes for cull in (True, False)]
-    m = make_model()
+    from test_bake import make_model as random_model
+
+    m = random_model(h=16, w=16)     # no facing input: it reads v_normal, which the old vertex stage lacks
     bundle = bake(m, meshes[0], (0.2, 0.3, 0.4))
     with renderer.BundleRenderer(bundle) as r:
         new_img = [r.render(cams, i) for i in range(len(cams))]
@@ -325,7 +327,7 @@ def test_a_shader_per_layer_picks_by_the_layer_column():
     from neuras_distill.neural.model import view_inputs
     from neuras_distill.neural.train import fit
 
-    normals = np.float32([[0, 0, 1], [0, 1, 0], [1, 0, 0]])
+    normals = np.float32([[[0, 0, 1], [0, 0, 1], [0, 1, 0], [1, 0, 0]]])      # per pixel (GBuffer.normal)
     dirs = np.float32([[[0, 0, -1], [0, 0, -1], [0, 0, -1], [0, 0, -1]]])
     face_id = np.array([[-1, 0, 1, 2]])
     inputs = view_inputs(dirs, face_id, normals, True, core_faces=2)

@@ -15,8 +15,8 @@ Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward 
   literal is exactly the float32 weight); all-zero blocks are skipped; ReLU = max(x, 0), sigmoid = 1/(1+exp(-x));
 - the view direction ``normalize(v_world - u_cam_pos)`` only when the model uses it or the facing cosine
   (otherwise the shader declares no ``u_cam_pos`` at all), in a vec4 whose w is the facing cosine ``|n . d|`` when the model uses
-  it (``MLPShader.use_facing``; n from ``cross(dFdx(v_world), dFdy(v_world))``: within one triangle the
-  interpolated position is affine, so this is the face's own normal, the one torch takes from the face id).
+  it (``MLPShader.use_facing``; n = ``normalize(v_normal)``, the interpolated vertex normal, as the G-buffer
+  hands torch in ``GBuffer.normal``: smooth across faces, where the face normal made a fringe's fade faceted).
 
 Unrolled mat4/vec4 arithmetic compiles in well under a second on Mesa llvmpipe and vectorises there.
 """
@@ -144,6 +144,8 @@ def generate_fragment_shader(model) -> str:
     ]
     if use_dir or use_facing:
         out += ["in vec3 v_world;", "uniform vec3 u_cam_pos;"]
+    if use_facing:
+        out.append("in vec3 v_normal;")
     if model.mesh_layers == 2:
         out += ["#ifndef MESH_LAYER", f"#define MESH_LAYER {CORE_VARIANT}  // the shell's program: shader_variant(source, 1)",
                 "#endif"]
@@ -157,7 +159,7 @@ def generate_fragment_shader(model) -> str:
     in_names = bilinear_feature_lines(out, "v_uv", tex_w, tex_h, "u_index", "u_codebook", c4, "a0", "    ")
     if use_facing:
         out += ["    vec3 dir = normalize(v_world - u_cam_pos);",
-                "    vec3 nrm = normalize(cross(dFdx(v_world), dFdy(v_world)));",
+                "    vec3 nrm = normalize(v_normal);",
                 "    float facing = abs(dot(nrm, dir));",
                 "    vec4 a0_d = " + ("vec4(dir, facing);" if use_dir else "vec4(facing, 0.0, 0.0, 0.0);")]
         in_names.append("a0_d")

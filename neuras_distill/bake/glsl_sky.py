@@ -116,7 +116,7 @@ def generate_sky_fragment_shader(skybox) -> str:
         "        acc += (trans * alpha) * rgb;",
         "        trans *= 1.0 - alpha;",
         "    }",
-        "    f_color = vec4(acc, 1.0);",
+        "    f_color = vec4(acc, 0.0);  // alpha 0: no mesh here (playback/silhouette.py)",
         "}",
         "",
     ]

@@ -51,6 +51,24 @@ class MeshData:
         length = np.linalg.norm(n, axis=1, keepdims=True)
         return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0).astype(np.float32)
 
+    def vertex_normals(self) -> np.ndarray:
+        """(V, 3) float32 unit vertex normals: the area-weighted sum of the normals of the faces around each
+        vertex *position* (vertices a UV seam duplicates share one normal, so shading is continuous across
+        charts), computed in float64; zero where every face around is degenerate. Frame: the vertices'."""
+        v = self.vertices.astype(np.float64)
+        if not self.num_faces:
+            return np.zeros((self.num_vertices, 3), np.float32)
+        tri = v[self.faces]
+        area_normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])      # length = 2 x area
+        _, position = np.unique(self.vertices, axis=0, return_inverse=True)
+        position = position.reshape(-1)
+        summed = np.zeros((int(position.max()) + 1, 3))
+        for corner in range(3):
+            np.add.at(summed, position[self.faces[:, corner]], area_normal)
+        n = summed[position]
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0).astype(np.float32)
+
     def uv_area(self) -> float:
         """Fraction of the unit uv square the faces cover (sum of |uv triangle areas|, float64; 0 without uvs):
         times an atlas's texel count, the number of texels its training has to fill."""

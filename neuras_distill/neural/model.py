@@ -26,26 +26,23 @@ from neuras_distill.neural.vq import VectorQuantizer
 from neuras_distill.errors import BadInputError
 
 
-def view_inputs(dirs, face_id, face_normals, use_facing: bool, core_faces: int | None = None) -> np.ndarray:
+def view_inputs(dirs, face_id, normals, use_facing: bool, core_faces: int | None = None) -> np.ndarray:
     """The MLP's view input per pixel: (..., 3) unit directions; with ``use_facing`` (..., 4) with ``|n . d|``
-    appended (n: the normal of the pixel's face; 0 where no face covers the pixel); with ``core_faces`` (a
-    two-layer mesh, ``MeshData.core_faces``) one more column, the pixel's mesh layer (0 core, 1 shell), which
-    picks the shader (:class:`NeuralTextureModel` with ``mesh_layers=2``).
+    appended (n: the pixel's shading normal, ``GBuffer.normal``; 0 where no face covers the pixel); with
+    ``core_faces`` (a two-layer mesh, ``MeshData.core_faces``) one more column, the pixel's mesh layer (0 core,
+    1 shell), which picks the shader (:class:`NeuralTextureModel` with ``mesh_layers=2``).
 
     Args:
         dirs: (..., 3) float32 unit view directions (camera to surface).
         face_id: (...) int face index per pixel (-1: uncovered), as in ``GBuffer.face_id``.
-        face_normals: (F, 3) unit face normals (``MeshData.face_normals()``), in the frame of ``dirs``.
+        normals: (..., 3) float32 unit shading normal per pixel (``GBuffer.normal``), in the frame of ``dirs``.
     """
     dirs = np.asarray(dirs, dtype=np.float32)
     face_id = np.asarray(face_id)
     columns = [dirs]
     if use_facing:
-        facing = np.zeros(face_id.shape, np.float32)
-        covered = face_id >= 0
-        facing[covered] = np.abs(np.einsum("ij,ij->i", np.asarray(face_normals, np.float32)[face_id[covered]],
-                                           dirs[covered]))
-        columns.append(facing[..., None])
+        facing = np.abs(np.einsum("...i,...i->...", np.asarray(normals, np.float32), dirs))
+        columns.append(np.where(face_id >= 0, facing, 0.0).astype(np.float32)[..., None])
     if core_faces is not None:
         columns.append((face_id >= int(core_faces)).astype(np.float32)[..., None])
     return columns[0] if len(columns) == 1 else np.concatenate(columns, axis=-1)

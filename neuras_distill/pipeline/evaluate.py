@@ -90,17 +90,19 @@ def error_vs_runtime(make_renderer, cameras: Cameras, reference_steps: int, step
 
 
 def gl_torch_parity(model, mesh, cameras: Cameras, gl_image: np.ndarray, background: np.ndarray,
-                    rasterize, skybox=None, world_cameras: Cameras | None = None) -> float:
+                    rasterize, skybox=None, world_cameras: Cameras | None = None,
+                    silhouette_blend: bool = False) -> float:
     """PSNR of the OpenGL render of camera 0 against the torch forward pass of the same model on the same
     G-buffer: proves the baked bundle plays what was trained (8-bit framebuffer caps it near 59 dB).
     ``mesh`` and ``cameras`` in the bundle's frame; with a ``skybox`` the pixels the mesh misses are
-    compared with its torch forward pass on the rays of ``world_cameras`` (camera 0)."""
+    compared with its torch forward pass on the rays of ``world_cameras`` (camera 0). ``silhouette_blend``:
+    the bundle plays with the soft-silhouette pass, so the reference gets its numpy mirror."""
     import torch
 
     from ..neural.model import view_inputs
 
     gbuffer = rasterize(mesh, cameras[0])
-    dirs = view_inputs(cameras.rays(0)[1].numpy(), gbuffer.face_id[0], mesh.face_normals(),
+    dirs = view_inputs(cameras.rays(0)[1].numpy(), gbuffer.face_id[0], gbuffer.normal[0],
                        model.use_facing, mesh.core_faces if model.mesh_layers == 2 else None)
     reference = model.render_gbuffer(gbuffer.uv[0], gbuffer.coverage[0], dirs, background)
     if skybox is not None:
@@ -110,6 +112,10 @@ def gl_torch_parity(model, mesh, cameras: Cameras, gl_image: np.ndarray, backgro
             sky, _ = skybox(skybox.layers.relative(origins[torch.from_numpy(missed)]),
                             world_dirs[torch.from_numpy(missed)])
         reference[missed] = sky.numpy()
+    if silhouette_blend:
+        from ..playback.silhouette import blend_silhouettes
+
+        reference = blend_silhouettes(reference, gbuffer.coverage[0])
     return metrics.psnr(gl_image, reference)
 
 
@@ -214,3 +220,26 @@ def crop_strip(field_image: np.ndarray, bundle_image: np.ndarray, flip_panel: np
     """(h, 3w + 2*gap, 3) uint8: field | bundle | FLIP panel cut to ``box`` [x0, y0, w, h], no scaling."""
     x0, y0, w, h = box
     return _strip([np.asarray(p)[y0:y0 + h, x0:x0 + w] for p in (field_image, bundle_image, flip_panel)])
+
+
+def plain_texture_baseline(model, bundle, train_gbuffer, train_inputs, test: Cameras, field_images: list,
+                           bundle_images: list, coverages: list, fps_frames: int) -> dict:
+    """What the neural shader buys: the model's plain RGB texture (``bake.plain_texture``) played in the same GL
+    pipeline on the held-out cameras (the neural bundle's pixels where the mesh covers nothing, so a skybox
+    counts alike), scored against the field like the bundle. Returns the report's ``plain_texture`` entry."""
+    from ..bake.plain_texture import plain_bundle, plain_texture
+    from ..flip_metric import flip
+    from ..playback.renderer import BundleRenderer
+
+    rgb = plain_texture(model, train_gbuffer.uv, train_gbuffer.coverage, train_inputs)
+    with BundleRenderer(plain_bundle(bundle, rgb)) as player:
+        images = [np.where(cov[..., None], player.render(test, i, skybox=False), full)
+                  for i, (cov, full) in enumerate(zip(coverages, bundle_images))]
+        timing = player.time_frames(test, warmup=3, frames=fps_frames)
+    quality = compare(images, field_images)
+    flips = [flip(img, ref)[0] for img, ref in zip(images, field_images)]
+    return {"psnr": quality["psnr"], "ssim": quality["ssim"], "flip": float(np.mean(flips)),
+            "psnr_per_view": quality["psnr_per_view"], "frame_time_ms": timing["median_ms"],
+            "texture": [int(rgb.shape[0]), int(rgb.shape[1])],
+            "how": "the neural shader evaluated once per texel at the mean view input its training pixels had, "
+                   "played bilinearly in the same GL pipeline (mesh, draw calls, cameras)"}

@@ -32,6 +32,15 @@ def _fidelity_rows(rep: dict) -> list[tuple[str, str, str]]:
             ("holes (field opaque, no mesh)", "-", f"{100 * rep['hole_fraction']:.3f}% of pixels")]
 
 
+def _plain_rows(rep: dict) -> list[tuple[str, str, str]]:
+    """The plain-texture baseline's row (what the neural shader buys), when the report has one."""
+    plain = rep.get("plain_texture")
+    if not plain:
+        return []
+    return [("plain RGB texture instead", "-", f"{plain['psnr']:.2f} dB, FLIP {plain['flip']:.4f}, "
+                                              f"{plain['frame_time_ms']:.2f} ms")]
+
+
 def flip_colors(error_map: np.ndarray) -> np.ndarray:
     """(H, W, 3) float32 magma colours of an (H, W) FLIP map (0 black, 1 pale yellow); NaN pixels cyan."""
     import matplotlib
@@ -59,6 +68,7 @@ def summary_table(rep: dict) -> str:
         ("PSNR / SSIM vs field", "reference", f"{rep['psnr']:.2f} dB / {rep['ssim']:.4f}"),
         *_fidelity_rows(rep),
         ("OpenGL vs torch parity", "-", f"{rep['parity_psnr']:.1f} dB"),
+        *_plain_rows(rep),
         ("faces", "-", f"{rep['mesh_faces']}"),
         ("texture", "-", f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
                          f"{rep['codebook_size']} codes"),
@@ -163,6 +173,9 @@ def markdown(rep: dict) -> str:
         *flip_row,
         f"| LPIPS | | {rep['lpips'] if rep['lpips'] is not None else 'n/a: ' + rep.get('lpips_note', '')} |",
         f"| OpenGL vs torch forward (parity) | | {rep['parity_psnr']:.1f} dB |",
+        *([f"| plain RGB texture instead of the neural shader | | {rep['plain_texture']['psnr']:.2f} dB, FLIP "
+           f"{rep['plain_texture']['flip']:.4f}, {rep['plain_texture']['frame_time_ms']:.2f} ms per frame |"]
+          if rep.get("plain_texture") else []),
         f"| faces | | {rep['mesh_faces']} |",
         f"| texture | | {rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
         f"{rep['codebook_size']} codes |",

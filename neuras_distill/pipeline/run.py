@@ -147,6 +147,19 @@ def _plan_steps(plan: dict, mesh, tex_res: int, left_out: list) -> None:
     left_out.append({"component": "training beyond the atlas's needs", "reason": why})
 
 
+def _resolve_silhouette_blend(fringe_pixels: float, train: Cameras, test: Cameras, left_out: list) -> bool:
+    """Whether the bundle plays with the soft-silhouette pass: when the field's fringe, ``fringe_pixels`` wide in
+    the training views, is at least ``decisions.SILHOUETTE_BLEND_MIN_PIXELS`` wide at the held-out (playing)
+    resolution; otherwise left out with the reason."""
+    width = fringe_pixels * float(test.width) / float(train.width)
+    if width >= decisions.SILHOUETTE_BLEND_MIN_PIXELS:
+        return True
+    left_out.append({"component": "soft-silhouette pass",
+                     "reason": f"the field's edges are {width:.1f} pixels wide at {test.width}x{test.height} "
+                               f"(< {decisions.SILHOUETTE_BLEND_MIN_PIXELS:g}): the mesh's hard edges match them"})
+    return False
+
+
 def _resolve_fringe(field, cfg: DistillConfig, opacity: np.ndarray, left_out: list) -> bool:
     """Whether the mesh should enclose the field's soft fringe (see ``geometry.marching``): when the fringe is
     at least ``decisions.FRINGE_MIN_PIXELS`` wide in the training views and the background is one constant
@@ -396,7 +409,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                           mesh.stats, core_faces=mesh.core_faces)
     gbuffer = rasterize_gbuffer(local_mesh, shift_cameras(train, origin), cull_back_faces=cfg.geometry.cull_back_faces)
     dirs = view_inputs(np.stack([train.rays(i)[1].numpy() for i in range(len(train))]), gbuffer.face_id,
-                       local_mesh.face_normals(), use_facing, local_mesh.core_faces)
+                       gbuffer.normal, use_facing, local_mesh.core_faces)
     use_skybox, sky_reason = _resolve_skyboxes(field, cfg, gbuffer, left_out)
     skybox = None
     sb = cfg.skybox
@@ -433,7 +446,9 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     stages.start("bake", "quantized features -> textures, MLP -> GLSL")
     bundle = bake(model, local_mesh, background_color=bg.tolist(), vertex_shader=VERTEX_SHADER,
                   extra_manifest={"left_out": left_out, "view_dependence": use_viewdir,
-                                  "cull_back_faces": cfg.geometry.cull_back_faces},
+                                  "cull_back_faces": cfg.geometry.cull_back_faces,
+                                  "silhouette_blend": _resolve_silhouette_blend(
+                                      decisions.fringe_width_pixels(train_opacity), train, test, left_out)},
                   skybox=skybox, origin=origin)
     codes_total = t.num_codes
     codes_kept = int(bundle.manifest.get("num_codes", codes_total))
@@ -455,7 +470,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     quality = evaluate.compare(bundle_images, field_images)
     parity = evaluate.gl_torch_parity(model, local_mesh, shift_cameras(test, origin), bundle_images[0], bg.numpy(),
                                       lambda m, c: rasterize_gbuffer(m, c, cull_back_faces=cfg.geometry.cull_back_faces),
-                                      skybox=skybox, world_cameras=test)
+                                      skybox=skybox, world_cameras=test, silhouette_blend=player.silhouette_blend)
     t_fid = time.perf_counter()
     coverages = evaluate.bundle_coverage(
         lambda c: rasterize_gbuffer(local_mesh, c, cull_back_faces=cfg.geometry.cull_back_faces),
@@ -470,6 +485,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                     "how": "the same bundle played without its skybox pass; pixels the mesh misses get the mean "
                            "colour of the training pixels it misses"}
     timing = player.time_frames(test, warmup=5, frames=cfg.eval.fps_frames)
+    plain = evaluate.plain_texture_baseline(model, bundle, gbuffer, dirs, test, field_images, bundle_images,
+                                            coverages, cfg.eval.fps_frames)
     points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(field, num_steps=s), test,
                                        2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
                                        cfg.teacher.num_steps, player)
@@ -519,6 +536,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "error_vs_runtime": points,
         "frame_time_ms": {"field_median": 1000 * float(np.median(field_seconds)),
                           "bundle_median": timing["median_ms"], "bundle_p90": timing.get("p90_ms")},
+        "plain_texture": plain,
+        "silhouette_blend": player.silhouette_blend,
         "training_plan": plan,
         "stability": stability,
         "train_log": train_history,

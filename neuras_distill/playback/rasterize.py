@@ -29,7 +29,8 @@ SINGLE_LAYER, CORE_LAYER, SHELL_LAYER = -1.0, 0.0, 1.0
 
 def _empty_gbuffer(n: int, h: int, w: int) -> GBuffer:
     return GBuffer(uv=np.zeros((n, h, w, 2), np.float32), face_id=np.full((n, h, w), -1, np.int32),
-                   coverage=np.zeros((n, h, w), bool), depth=np.full((n, h, w), np.inf, np.float32))
+                   coverage=np.zeros((n, h, w), bool), depth=np.full((n, h, w), np.inf, np.float32),
+                   normal=np.zeros((n, h, w, 3), np.float32))
 
 
 def set_raster_state(ctx, cull_back_faces: bool) -> None:
@@ -48,13 +49,16 @@ def set_raster_state(ctx, cull_back_faces: bool) -> None:
 
 
 def mesh_vertex_array(ctx, program, mesh: MeshData):
-    """(vao, [buffers]) drawing ``mesh`` as indexed triangles with attributes in_position / in_uv.
+    """(vao, [buffers]) drawing ``mesh`` as indexed triangles with attributes in_position / in_uv / in_normal
+    (``MeshData.vertex_normals``).
 
-    ``mesh.uvs`` None is drawn with uv = 0. Attributes the program does not use are skipped. The caller
-    releases the vao and the buffers.
+    ``mesh.uvs`` None is drawn with uv = 0. Attributes the program does not use are skipped (and normals are
+    then not computed). The caller releases the vao and the buffers.
     """
     uvs = mesh.uvs if mesh.uvs is not None else np.zeros((mesh.num_vertices, 2), np.float32)
-    interleaved = np.ascontiguousarray(np.concatenate([mesh.vertices, uvs], axis=1), dtype=np.float32)
+    use_normals = "in_normal" in program
+    columns = [mesh.vertices, uvs] + ([mesh.vertex_normals()] if use_normals else [])
+    interleaved = np.ascontiguousarray(np.concatenate(columns, axis=1), dtype=np.float32)
     vbo = ctx.buffer(interleaved.tobytes())
     ibo = ctx.buffer(np.ascontiguousarray(mesh.faces, dtype=np.int32).tobytes())
     fmt, names = ["3f"], ["in_position"]
@@ -63,6 +67,9 @@ def mesh_vertex_array(ctx, program, mesh: MeshData):
         names.append("in_uv")
     else:
         fmt.append("8x")
+    if use_normals:
+        fmt.append("3f")
+        names.append("in_normal")
     vao = ctx.vertex_array(program, [(vbo, " ".join(fmt), *names)], index_buffer=ibo, index_element_size=4)
     return vao, [vbo, ibo]
 
@@ -120,7 +127,7 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
     Returns:
         GBuffer with uv (N, H, W, 2) f32 (0 where empty), face_id (N, H, W) i32 (index into ``mesh.faces``,
         -1 where empty), coverage (N, H, W) bool, depth (N, H, W) f32 view-space depth along -z of the visible
-        face (inf where empty).
+        face (inf where empty), normal (N, H, W, 3) f32 unit interpolated vertex normal (0 where empty).
     """
     n, w, h = len(cameras), int(cameras.width), int(cameras.height)
     _check_mesh(mesh)
@@ -133,6 +140,7 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
     uv = np.empty((n, h, w, 2), np.float32)
     face = np.empty((n, h, w), np.int32)
     depth = np.empty((n, h, w), np.float32)
+    normal = np.empty((n, h, w, 3), np.float32)
 
     resources = []
     try:
@@ -144,11 +152,12 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
         tex_uv = ctx.texture((w, h), 2, dtype="f4")
         tex_face = ctx.texture((w, h), 1, dtype="i4")
         tex_depth = ctx.texture((w, h), 1, dtype="f4")
-        for t in (tex_uv, tex_face, tex_depth):
+        tex_normal = ctx.texture((w, h), 4, dtype="f4")
+        for t in (tex_uv, tex_face, tex_depth, tex_normal):
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         depth_rb = ctx.depth_renderbuffer((w, h))
-        fbo = ctx.framebuffer([tex_uv, tex_face, tex_depth], depth_rb)
-        resources += [tex_uv, tex_face, tex_depth, depth_rb, fbo]
+        fbo = ctx.framebuffer([tex_uv, tex_face, tex_depth, tex_normal], depth_rb)
+        resources += [tex_uv, tex_face, tex_depth, tex_normal, depth_rb, fbo]
 
         fbo.use()
         set_raster_state(ctx, cull_back_faces)
@@ -162,6 +171,8 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
             uv[i] = np.frombuffer(fbo.read(components=2, attachment=0, dtype="f4"), np.float32).reshape(h, w, 2)[::-1]
             face[i] = np.frombuffer(fbo.read(components=1, attachment=1, dtype="i4"), np.int32).reshape(h, w)[::-1]
             depth[i] = np.frombuffer(fbo.read(components=1, attachment=2, dtype="f4"), np.float32).reshape(h, w)[::-1]
+            normal[i] = np.frombuffer(fbo.read(components=3, attachment=3, dtype="f4"),
+                                      np.float32).reshape(h, w, 3)[::-1]
     finally:
         for r in reversed(resources):
             r.release()
@@ -170,4 +181,5 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
     coverage = face >= 0
     depth[~coverage] = np.inf
     uv[~coverage] = 0.0
-    return GBuffer(uv=uv, face_id=face, coverage=coverage, depth=depth)
+    normal[~coverage] = 0.0
+    return GBuffer(uv=uv, face_id=face, coverage=coverage, depth=depth, normal=normal)

@@ -30,6 +30,7 @@ from .context import get_context
 from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for, shift_cameras
 from .rasterize import _check_mesh, draw_mesh, mesh_layers, mesh_vertex_array, set_raster_state
 from .shaders import VERTEX_SHADER, shader_variant
+from .silhouette import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER
 
 
 def _texture_layout(name: str, arr: np.ndarray) -> tuple[int, str]:
@@ -51,11 +52,13 @@ class BundleRenderer:
         bundle: object with ``mesh`` (MeshData with uvs), ``textures`` (dict uniform name -> np array),
             ``fragment_shader`` (GLSL 330 source; see shaders.py for its interface), ``background_color`` (3 floats).
         ctx: moderngl context (default :func:`context.get_context`).
+        silhouette_blend: run the soft-silhouette pass (``silhouette.py``) after the scene; default: the
+            bundle manifest's ``silhouette_blend`` (bundles from before it have none and play without).
 
     Call :meth:`release` (or use as a context manager) to free the GL objects early.
     """
 
-    def __init__(self, bundle, ctx=None):
+    def __init__(self, bundle, ctx=None, silhouette_blend: bool | None = None):
         import moderngl  # noqa: PLC0415 (lazy)
 
         self._mgl = moderngl
@@ -67,6 +70,9 @@ class BundleRenderer:
         self._bounds = mesh_bounds(mesh.vertices)
         self._fbo_cache: dict = {}
         self._resources: list = []
+        manifest = getattr(bundle, "manifest", None) or {}
+        self.silhouette_blend = bool(manifest.get("silhouette_blend", False) if silhouette_blend is None
+                                     else silhouette_blend)
         self._textures: list = []
         self._layers = mesh_layers(mesh)
         # one program per mesh layer (a two-layer bundle's shader holds a variant per layer, glsl.shader_variant)
@@ -93,6 +99,12 @@ class BundleRenderer:
             self.sky_vao = self.ctx.vertex_array(self.sky_program, [])
             self._resources += [self.sky_program, self.sky_vao]
             self.sky_center = np.asarray(bundle.manifest["skybox"]["center"], np.float64).reshape(3)
+        self.blend_program = self.blend_vao = None
+        if self.silhouette_blend:
+            self.blend_program = self.ctx.program(vertex_shader=SILHOUETTE_VERTEX_SHADER,
+                                                  fragment_shader=SILHOUETTE_FRAGMENT_SHADER)
+            self.blend_vao = self.ctx.vertex_array(self.blend_program, [])
+            self._resources += [self.blend_program, self.blend_vao]
         self.vaos: dict = {}
         for layer, program in self.programs.items():
             if mesh.num_faces:
@@ -117,13 +129,26 @@ class BundleRenderer:
 
     # ------------------------------------------------------------------ internals
     def _fbo(self, width: int, height: int):
+        """(scene framebuffer, final framebuffer) at this size: the same one without the silhouette pass; with
+        it, the scene renders into an RGBA8 texture the pass reads."""
         key = (width, height)
         if key not in self._fbo_cache:
-            color = self.ctx.renderbuffer((width, height), 4, dtype="f1")
+            objects = []
+            if self.silhouette_blend:
+                color = self.ctx.texture((width, height), 4, dtype="f1")
+                color.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+            else:
+                color = self.ctx.renderbuffer((width, height), 4, dtype="f1")
             depth = self.ctx.depth_renderbuffer((width, height))
-            fbo = self.ctx.framebuffer([color], depth)
-            self._fbo_cache[key] = (fbo, color, depth)
-        return self._fbo_cache[key][0]
+            scene = self.ctx.framebuffer([color], depth)
+            objects += [scene, color, depth]
+            final = scene
+            if self.silhouette_blend:
+                out = self.ctx.renderbuffer((width, height), 4, dtype="f1")
+                final = self.ctx.framebuffer([out])
+                objects += [final, out]
+            self._fbo_cache[key] = (scene, final, color, objects)
+        return self._fbo_cache[key]
 
     def _set_camera(self, cameras, i: int) -> None:
         """``cameras`` are already in the bundle's frame (see :meth:`_draw`)."""
@@ -164,9 +189,9 @@ class BundleRenderer:
             fbo.depth_mask = True
 
     def _draw(self, cameras, i: int, skybox: bool = True):
-        fbo = self._fbo(int(cameras.width), int(cameras.height))
+        fbo, final, scene_color, _ = self._fbo(int(cameras.width), int(cameras.height))
         fbo.use()
-        fbo.clear(*self.background, 1.0, depth=1.0)
+        fbo.clear(*self.background, 0.0, depth=1.0)     # alpha 0: no mesh (the mesh shaders write 1)
         for unit, tex in self._textures:
             tex.use(location=unit)
         set_raster_state(self.ctx, self.cull_back_faces)
@@ -177,7 +202,13 @@ class BundleRenderer:
                 draw_mesh(self.vaos[layer], self.programs[layer], [call])
         if skybox and self.sky_program is not None:
             self._draw_sky(cameras, i)         # after the mesh: only the pixels it left empty are shaded
-        return fbo
+        if final is not fbo:                   # the soft-silhouette pass (silhouette.py)
+            final.use()
+            self.ctx.disable(self._mgl.DEPTH_TEST | self._mgl.CULL_FACE)
+            scene_color.use(location=0)
+            self.blend_program["u_scene"].value = 0
+            self.blend_vao.render(self._mgl.TRIANGLES, vertices=3)
+        return final
 
     # ------------------------------------------------------------------ public
     def render(self, cameras, i: int, skybox: bool = True) -> np.ndarray:
@@ -214,8 +245,9 @@ class BundleRenderer:
 
     def release(self) -> None:
         """Free the GL objects (program, buffers, textures, framebuffers)."""
-        for fbo, color, depth in self._fbo_cache.values():
-            fbo.release(); color.release(); depth.release()  # noqa: E702
+        for *_, objects in self._fbo_cache.values():
+            for obj in objects:
+                obj.release()
         self._fbo_cache.clear()
         for r in reversed(self._resources):
             r.release()

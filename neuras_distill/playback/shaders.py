@@ -1,10 +1,11 @@
 """GLSL sources shared by the G-buffer rasterizer and bundle playback (this module owns the vertex stage).
 
 Shader interface (see docs/architecture.md):
-  vertex:   in vec3 in_position (world), in vec2 in_uv; uniform mat4 u_mvp (world -> clip);
-            uniform float u_layer (the mesh layer being drawn, see below);
-            out vec2 v_uv, out vec3 v_world (world position, perspective-correct interpolated).
-  fragment: in vec2 v_uv, in vec3 v_world; uniform vec3 u_cam_pos; out vec4 f_color; one sampler per texture.
+  vertex:   in vec3 in_position (world), in vec2 in_uv, in vec3 in_normal (``MeshData.vertex_normals``);
+            uniform mat4 u_mvp (world -> clip); uniform float u_layer (the mesh layer being drawn, see below);
+            out vec2 v_uv, out vec3 v_world (world position), out vec3 v_normal (perspective-correct interpolated).
+  fragment: in vec2 v_uv, in vec3 v_world, in vec3 v_normal; uniform vec3 u_cam_pos; out vec4 f_color; one
+            sampler per texture.
 
 Two-layer meshes (``MeshData.core_faces``): the core and the shell are drawn with one draw call each, core first,
 with ``u_layer`` = 0 (core) or 1 (shell). The vertex stage moves the layer's NDC depth into its own half of the
@@ -23,11 +24,14 @@ uniform mat4 u_mvp;
 uniform float u_layer;  // -1: single layer (depth as projected); 0: core (NDC z in [-1, 0]); 1: shell ([0, 1])
 in vec3 in_position;
 in vec2 in_uv;
+in vec3 in_normal;
 out vec2 v_uv;
 out vec3 v_world;
+out vec3 v_normal;
 void main() {
     v_uv = in_uv;
     v_world = in_position;
+    v_normal = in_normal;
     gl_Position = u_mvp * vec4(in_position, 1.0);
     if (u_layer >= 0.0) {
         gl_Position.z = 0.5 * gl_Position.z + (u_layer - 0.5) * gl_Position.w;
@@ -44,13 +48,16 @@ uniform vec4 u_view_z;  // row 2 of the world-to-camera matrix
 uniform int u_face_offset;
 in vec2 v_uv;
 in vec3 v_world;
+in vec3 v_normal;
 layout(location = 0) out vec2 f_uv;
 layout(location = 1) out int f_face;
 layout(location = 2) out float f_depth;
+layout(location = 3) out vec4 f_normal;
 void main() {
     f_uv = v_uv;
     f_face = gl_PrimitiveID + u_face_offset + 1;
     f_depth = -(dot(u_view_z.xyz, v_world) + u_view_z.w);
+    f_normal = vec4(normalize(v_normal), 0.0);
 }
 """
 

@@ -1,0 +1,114 @@
+"""The plain RGB texture of a trained model: what the bundle would be without its neural shader.
+
+Owns: :func:`texel_view_inputs`, :func:`plain_texture`, :func:`plain_fragment_shader` and :func:`plain_bundle`.
+
+Each texel's colour is the model's own output for that texel, evaluated once: the texel's (quantized) feature
+through the shader of the layer that texel belongs to, with the mean view input the training views saw it
+with (unit mean direction, mean facing cosine, the majority layer). Texels no training pixel saw take the inputs
+of the nearest seen texel. Played with bilinear filtering in the same GL pipeline (same mesh, same UVs, same
+draw calls), it is the baseline the neural shader is measured against (``report.json["plain_texture"]``) and
+the texture other engines get (glTF's base colour).
+
+Frames: directions in the bundle's frame (the training G-buffers' frame: relative to the run's origin).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy import ndimage
+
+from .bundle import Bundle
+
+
+def _nearest_texel(uv: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(M,) int64 flat index ``j * W + i`` of the texel whose square contains each uv (clamped to the atlas)."""
+    i = np.clip(np.floor(uv[:, 0] * width), 0, width - 1).astype(np.int64)
+    j = np.clip(np.floor(uv[:, 1] * height), 0, height - 1).astype(np.int64)
+    return j * width + i
+
+
+def texel_view_inputs(uv, coverage, view_inputs, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean view input per texel over the covered training pixels.
+
+    Args:
+        uv: (N, H', W', 2) G-buffer uvs; coverage: (N, H', W') bool; view_inputs: (N, H', W', C) the model's
+            view inputs of those pixels (``neural.model.view_inputs``).
+    Returns:
+        (mean (height * width, C) float32, count (height * width,) int64 pixels per texel).
+    """
+    cov = np.asarray(coverage, bool).reshape(-1)
+    uv = np.asarray(uv, np.float32).reshape(-1, 2)[cov]
+    inputs = np.asarray(view_inputs, np.float32)
+    inputs = inputs.reshape(-1, inputs.shape[-1])[cov].astype(np.float64)
+    texel = _nearest_texel(uv, height, width)
+    count = np.bincount(texel, minlength=height * width)
+    mean = np.stack([np.bincount(texel, weights=inputs[:, c], minlength=height * width)
+                     for c in range(inputs.shape[1])], axis=1) / np.maximum(count, 1)[:, None]
+    return mean.astype(np.float32), count
+
+
+@torch.no_grad()
+def plain_texture(model, uv, coverage, view_inputs) -> np.ndarray:
+    """(H, W, 3) float32 RGB in [0, 1] of ``model`` (a trained ``NeuralTextureModel``), one colour per texel."""
+    h, w = int(model.tex_height), int(model.tex_width)
+    mean, count = texel_view_inputs(uv, coverage, view_inputs, h, w)
+    seen = (count > 0).reshape(h, w)
+    if seen.any() and not seen.all():        # unseen texels borrow the nearest seen texel's inputs
+        _, (jj, ii) = ndimage.distance_transform_edt(~seen, return_indices=True)
+        mean = mean[(jj * w + ii).reshape(-1)]
+    inputs = torch.from_numpy(mean)
+    norm = inputs[:, :3].norm(dim=1, keepdim=True)
+    inputs[:, :3] = torch.where(norm > 0, inputs[:, :3] / norm.clamp(min=1e-12), torch.tensor([0.0, 0.0, -1.0]))
+    if model.mesh_layers == 2:
+        inputs[:, -1] = (inputs[:, -1] > 0.5).float()
+    jj, ii = torch.meshgrid(torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32),
+                            indexing="ij")
+    centres = torch.stack([(ii.reshape(-1) + 0.5) / w, (jj.reshape(-1) + 0.5) / h], dim=1)
+    was_training = model.training
+    model.eval()
+    try:
+        rgb = torch.cat([model(centres[s:s + 65536], inputs[s:s + 65536])[0] for s in range(0, h * w, 65536)])
+    finally:
+        model.train(was_training)
+    return rgb.reshape(h, w, 3).clamp(0.0, 1.0).numpy().astype(np.float32)
+
+
+def plain_fragment_shader(width: int, height: int) -> str:
+    """GLSL 330 fragment shader playing an RGB float texture ``u_rgb`` (H x W x 3, texelFetch only) with the
+    bilinear-corner arithmetic of ``neural.texture.bilinear_corners``."""
+    return "\n".join([
+        "#version 330 core",
+        f"// plain RGB texture, {width}x{height}, bilinear (the baseline of the neural shader)",
+        "in vec2 v_uv;",
+        "uniform sampler2D u_rgb;",
+        "out vec4 f_color;",
+        "void main() {",
+        f"    vec2 xy = v_uv * vec2({width}.0, {height}.0) - 0.5;",
+        "    vec2 b0 = floor(xy);",
+        "    vec2 f = xy - b0;",
+        "    vec2 g = 1.0 - f;",
+        f"    ivec2 hi = ivec2({width - 1}, {height - 1});",
+        "    ivec2 c0 = clamp(ivec2(b0), ivec2(0), hi);",
+        "    ivec2 c1 = clamp(ivec2(b0) + 1, ivec2(0), hi);",
+        "    vec3 rgb = g.x * g.y * texelFetch(u_rgb, c0, 0).rgb"
+        " + f.x * g.y * texelFetch(u_rgb, ivec2(c1.x, c0.y), 0).rgb"
+        " + g.x * f.y * texelFetch(u_rgb, ivec2(c0.x, c1.y), 0).rgb"
+        " + f.x * f.y * texelFetch(u_rgb, c1, 0).rgb;",
+        "    f_color = vec4(rgb, 1.0);",
+        "}",
+        "",
+    ])
+
+
+def plain_bundle(bundle: Bundle, rgb: np.ndarray) -> Bundle:
+    """A bundle with ``bundle``'s mesh, background and origin that plays the plain texture ``rgb`` (H, W, 3)
+    (no skybox pass: the sky is not a texture on the mesh)."""
+    h, w = rgb.shape[:2]
+    manifest = {k: v for k, v in bundle.manifest.items() if k in ("origin", "cull_back_faces", "core_faces", "silhouette_blend")}
+    return Bundle(mesh=bundle.mesh, textures={"u_rgb": np.ascontiguousarray(rgb, np.float32)},
+                  fragment_shader=plain_fragment_shader(w, h), background_color=bundle.background_color,
+                  manifest=manifest, vertex_shader=bundle.vertex_shader)
+
+
+__all__ = ["texel_view_inputs", "plain_texture", "plain_fragment_shader", "plain_bundle"]

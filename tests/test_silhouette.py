@@ -1,0 +1,51 @@
+"""The soft-silhouette pass (playback/silhouette.py): GL and its numpy mirror agree, and only edges change."""
+
+import numpy as np
+import pytest
+
+from neuras_distill.bake.bundle import bake
+from neuras_distill.geometry.mesh import MeshData
+from neuras_distill.playback.silhouette import blend_silhouettes, silhouette_edges
+from test_two_layer import _sphere, cameras, gl
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def test_edges_are_the_pixels_on_both_sides_of_the_coverage_boundary():
+    cov = np.zeros((8, 10), bool)
+    cov[2:6, 3:10] = True                        # touches the right border
+    edges = silhouette_edges(cov)
+    assert edges[2, 5] and edges[1, 5]           # the boundary row inside and the one outside
+    assert not edges[4, 5] and not edges[7, 5]   # deep inside / far outside
+    assert not edges[3:5, 9].any()               # the image border is no silhouette
+    image = np.zeros((8, 10, 3), np.float32)
+    image[cov] = 1.0
+    out = blend_silhouettes(image, cov)
+    np.testing.assert_allclose(out[2, 5], 6 / 9)         # 6 of its 9 neighbours are covered
+    np.testing.assert_allclose(out[1, 5], 3 / 9)
+    assert (out[~edges] == image[~edges]).all()
+
+
+@gl
+@pytest.mark.gl
+def test_the_gl_pass_is_its_numpy_mirror_and_changes_only_edges():
+    from test_bake import make_model
+
+    from neuras_distill.playback.rasterize import rasterize_gbuffer
+    from neuras_distill.playback.renderer import BundleRenderer
+
+    v, f, uv = _sphere(0.5)
+    mesh = MeshData(v, f, uv)
+    bundle = bake(make_model(h=16, w=16), mesh, (0.9, 0.8, 0.7), extra_manifest={"silhouette_blend": True})
+    cams = cameras(2, 72)
+    coverage = rasterize_gbuffer(mesh, cams).coverage
+    with BundleRenderer(bundle) as soft, BundleRenderer(bundle, silhouette_blend=False) as hard:
+        assert soft.silhouette_blend and not hard.silhouette_blend
+        for i in range(len(cams)):
+            plain, blended = hard.render(cams, i), soft.render(cams, i)
+            edges = silhouette_edges(coverage[i])
+            assert edges.sum() > 100
+            assert np.abs(blended - blend_silhouettes(plain, coverage[i])).max() <= 1.01 / 255
+            assert (blended[~edges] == plain[~edges]).all()
+            assert np.abs(blended[edges] - plain[edges]).mean() > 0.02
+        assert soft.time_frames(cams, warmup=1, frames=2)["median_ms"] > 0
