@@ -21,8 +21,8 @@ def test_edges_are_the_pixels_on_both_sides_of_the_coverage_boundary():
     image = np.zeros((8, 10, 3), np.float32)
     image[cov] = 1.0
     out = blend_silhouettes(image, cov)
-    np.testing.assert_allclose(out[2, 5], 6 / 9)         # 6 of its 9 neighbours are covered
-    np.testing.assert_allclose(out[1, 5], 3 / 9)
+    np.testing.assert_allclose(out[2, 5], 0.75)          # tent [1 2 1] / 4 across the edge: 1 + 2 of 4 covered
+    np.testing.assert_allclose(out[1, 5], 0.25)
     assert (out[~edges] == image[~edges]).all()
 
 
@@ -45,7 +45,8 @@ def test_the_gl_pass_is_its_numpy_mirror_and_changes_only_edges():
             plain, blended = hard.render(cams, i), soft.render(cams, i)
             edges = silhouette_edges(coverage[i])
             assert edges.sum() > 100
-            assert np.abs(blended - blend_silhouettes(plain, coverage[i])).max() <= 1.01 / 255
+            diff = np.abs(blended - blend_silhouettes(plain, coverage[i]))
+            assert diff.max() <= 2.01 / 255 and diff.mean() < 0.1 / 255     # GL's LINEAR weights: 8-bit fixed point
             assert (blended[~edges] == plain[~edges]).all()
             assert np.abs(blended[edges] - plain[edges]).mean() > 0.02
         assert soft.time_frames(cams, warmup=1, frames=2)["median_ms"] > 0

@@ -103,6 +103,25 @@ def camera_near_far(bounds, cameras, i: int) -> tuple[float, float]:
     return near_far_for(bounds, c2w[:3, 3], c2w)
 
 
+def screen_box(bounds, mvp: np.ndarray, width: int, height: int, margin: int = 2) -> tuple[int, int, int, int]:
+    """(x, y, w, h) GL window rectangle (origin bottom-left) containing the projection of the box ``bounds``
+    (2, 3) under ``mvp`` (4, 4), grown by ``margin`` pixels and clamped to the viewport; the whole viewport
+    when a box corner lies on or behind the camera plane (the projection is then unbounded)."""
+    b = np.asarray(bounds, np.float64)
+    corners = np.array([[b[i, 0], b[j, 1], b[k, 2], 1.0] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    clip = corners @ np.asarray(mvp, np.float64).T
+    if (clip[:, 3] <= 1e-9).any():
+        return 0, 0, int(width), int(height)
+    ndc = clip[:, :2] / clip[:, 3:4]
+    x0 = int(np.floor((ndc[:, 0].min() + 1) * 0.5 * width)) - margin
+    x1 = int(np.ceil((ndc[:, 0].max() + 1) * 0.5 * width)) + margin
+    y0 = int(np.floor((ndc[:, 1].min() + 1) * 0.5 * height)) - margin
+    y1 = int(np.ceil((ndc[:, 1].max() + 1) * 0.5 * height)) + margin
+    x0, y0 = max(0, x0), max(0, y0)
+    x1, y1 = min(int(width), x1), min(int(height), y1)
+    return x0, y0, max(0, x1 - x0), max(0, y1 - y0)
+
+
 def shift_cameras(cameras, offset):
     """``cameras`` with every centre moved by ``-offset`` (3,) (computed in float64): the cameras in a frame
     centred on ``offset``, e.g. a bundle's origin, so GL works on small float32 coordinates."""

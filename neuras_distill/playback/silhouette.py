@@ -4,13 +4,16 @@ A field's surface fades out over a pixel or more (a NeuS opacity is a sigmoid of
 up), so its renders show every silhouette as a soft, partly covered edge; a rasterized mesh cuts it hard, one
 sample per pixel. Multisampling (4x) softened those edges and gained 2.6 dB on the NeuS fixture, but llvmpipe
 shades every sample (2.6x the frame time). This pass gets more for a fraction of that: after the mesh (and
-skybox) pass, every pixel whose 4-neighbourhood holds both mesh and no mesh is replaced by the mean of its 3 x 3
-neighbourhood; all other pixels pass through. Measured on trained bundles against the field (same held-out
-views): NeuS fixture 32.96 -> 36.70 dB, demo 34.77 -> 36.46 dB; the gradient ball, whose fringe shell already
-fades to the background, is unchanged.
+skybox) pass, every pixel whose two diagonal 2 x 2 blocks (with its left and lower, and with its right and
+upper neighbours) hold both mesh and no mesh becomes the tent filter [1 2 1] x [1 2 1] / 16 of its
+neighbourhood; all other pixels pass through. The GLSL reads LINEAR-filtered 2 x 2 block means (two fetches
+for the test, two more on edges), and runs only over the screen rectangle of the mesh's box. Measured on
+session-7 bundles against the field (same held-out views, 8-bit): NeuS fixture 32.96 -> 37.01 dB, demo
+34.77 -> 36.44 dB (a 3 x 3 box instead: 36.70 / 36.46); the gradient ball, whose fringe shell already fades to
+the background, is unchanged.
 
 Coverage travels in the scene pass's alpha: the mesh shaders write 1, the clear colour and the skybox pass 0.
-Neighbours outside the image are the pixel itself (no edges along the image border).
+Neighbours outside the image are clamped to it (no edges along the image border).
 
 Owns: the GLSL of the pass (:data:`SILHOUETTE_VERTEX_SHADER`, :data:`SILHOUETTE_FRAGMENT_SHADER`) and its numpy
 mirror :func:`blend_silhouettes` (what the torch reference applies for the GL/torch parity).
@@ -29,47 +32,52 @@ void main() {
 """
 
 SILHOUETTE_FRAGMENT_SHADER = """#version 330
-uniform sampler2D u_scene;  // RGBA8 scene pass: rgb, a = 1 where the mesh drew
+uniform sampler2D u_scene;  // RGBA8 scene pass, LINEAR filtered: rgb, a = 1 where the mesh drew
 out vec4 f_color;
 void main() {
-    ivec2 p = ivec2(gl_FragCoord.xy);
-    ivec2 hi = textureSize(u_scene, 0) - 1;
-    vec4 c = texelFetch(u_scene, p, 0);
-    float l = texelFetch(u_scene, clamp(p + ivec2(-1, 0), ivec2(0), hi), 0).a;
-    float r = texelFetch(u_scene, clamp(p + ivec2(1, 0), ivec2(0), hi), 0).a;
-    float d = texelFetch(u_scene, clamp(p + ivec2(0, -1), ivec2(0), hi), 0).a;
-    float u = texelFetch(u_scene, clamp(p + ivec2(0, 1), ivec2(0), hi), 0).a;
-    float lo = min(min(min(l, r), min(d, u)), c.a);
-    float up = max(max(max(l, r), max(d, u)), c.a);
-    if (lo < 0.5 && up > 0.5) {
-        vec3 sum = vec3(0.0);
-        for (int dy = -1; dy <= 1; ++dy)
-            for (int dx = -1; dx <= 1; ++dx)
-                sum += texelFetch(u_scene, clamp(p + ivec2(dx, dy), ivec2(0), hi), 0).rgb;
-        f_color = vec4(sum / 9.0, 1.0);
-    } else {
-        f_color = vec4(c.rgb, 1.0);
+    vec2 size = vec2(textureSize(u_scene, 0));
+    vec2 p = gl_FragCoord.xy / size;         // this pixel's centre
+    vec2 h = 0.5 / size;                     // half a pixel: a LINEAR fetch there is the mean of a 2 x 2 block
+    vec4 a = texture(u_scene, p - h);        // the block of this pixel and its left, lower, lower-left ones
+    vec4 b = texture(u_scene, p + h);        // ... and its right, upper, upper-right ones
+    if (min(a.a, b.a) > 0.999 || max(a.a, b.a) < 0.001) {
+        f_color = vec4(texture(u_scene, p).rgb, 1.0);
+    } else {                                 // an edge: the tent filter [1 2 1] x [1 2 1] / 16
+        vec4 c = texture(u_scene, p + vec2(h.x, -h.y));
+        vec4 d = texture(u_scene, p + vec2(-h.x, h.y));
+        f_color = vec4(0.25 * (a.rgb + b.rgb + c.rgb + d.rgb), 1.0);
     }
 }
 """
 
 
+def _block_means(x: np.ndarray) -> list[np.ndarray]:
+    """Means of the four 2 x 2 blocks around each pixel of (H, W[, C]) ``x`` (row 0 = top; edge-clamped), in
+    the order of the GLSL fetches: left-below, right-above, right-below, left-above."""
+    pad = np.pad(x, ((1, 1), (1, 1)) + ((0, 0),) * (x.ndim - 2), mode="edge").astype(np.float32)
+    h, w = x.shape[:2]
+
+    def block(r0: int, c0: int) -> np.ndarray:      # rows r0..r0+1, cols c0..c0+1 of the padded image
+        return 0.25 * (pad[r0:r0 + h, c0:c0 + w] + pad[r0 + 1:r0 + 1 + h, c0:c0 + w]
+                       + pad[r0:r0 + h, c0 + 1:c0 + 1 + w] + pad[r0 + 1:r0 + 1 + h, c0 + 1:c0 + 1 + w])
+
+    return [block(1, 0), block(0, 1), block(1, 1), block(0, 0)]
+
+
 def silhouette_edges(coverage: np.ndarray) -> np.ndarray:
-    """(H, W) bool: pixels whose 4-neighbourhood (itself included; outside the image: itself) holds both covered
-    and uncovered pixels."""
-    cov = np.pad(np.asarray(coverage, bool), 1, mode="edge")
-    stack = np.stack([cov[1:-1, 1:-1], cov[1:-1, :-2], cov[1:-1, 2:], cov[:-2, 1:-1], cov[2:, 1:-1]])
-    return stack.any(axis=0) & ~stack.all(axis=0)
+    """(H, W) bool: pixels whose two diagonal 2 x 2 blocks (with the left and lower, and with the right and upper
+    neighbours; outside the image: edge-clamped) hold both covered and uncovered pixels."""
+    a, b = _block_means(np.asarray(coverage, np.float32))[:2]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    return ~((lo > 0.999) | (hi < 0.001))
 
 
 def blend_silhouettes(image: np.ndarray, coverage: np.ndarray) -> np.ndarray:
     """The pass on an (H, W, 3) float image with its (H, W) mesh coverage: edge pixels (:func:`silhouette_edges`)
-    become the mean of their 3 x 3 neighbourhood (edge-clamped)."""
+    become the tent filter [1 2 1] x [1 2 1] / 16 of their neighbourhood (the mean of the four 2 x 2 blocks)."""
     img = np.asarray(image, np.float32)
-    pad = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    h, w = img.shape[:2]
-    mean = sum(pad[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)) / 9.0
-    return np.where(silhouette_edges(coverage)[..., None], mean, img).astype(np.float32)
+    tent = sum(_block_means(img)) / 4.0
+    return np.where(silhouette_edges(coverage)[..., None], tent, img).astype(np.float32)
 
 
 __all__ = ["SILHOUETTE_VERTEX_SHADER", "SILHOUETTE_FRAGMENT_SHADER", "silhouette_edges", "blend_silhouettes"]
