@@ -86,6 +86,13 @@ class TextureConfig:
     """"auto" (measure the field and drop the view direction when colour does not depend on it), "on", "off"."""
     view_threshold: float = 0.01
     """Mean colour change (0..1) over view directions below which "auto" drops the view direction."""
+    soft_silhouettes: str = "auto"
+    """The soft-silhouette pass (``playback/silhouette.py``): "auto" (when the field's fringe is at least 1.5
+    pixels wide at the playing resolution), "on", "off". Measured with ``benchmarks/playback.py`` (alone, Mesa
+    llvmpipe, 2 cores): NeuS fixture 32.97 -> 37.06 dB, instant-nsr-pl 31.03 -> 33.98, demo 35.30 -> 37.22,
+    street 28.70 -> 28.96; it costs +33% to +60% frame time here (demo 48.5 -> 73.9 ms at 1080p: llvmpipe
+    renders the scene into a texture and runs a second pass), a fraction of a millisecond on a GPU. "off" keeps
+    the frame time."""
 
 
 @dataclass
@@ -171,6 +178,8 @@ class DistillConfig:
                                     "pass e.g. --face-budget 40000")
         require(g.grid_resolution >= 16, f"grid resolution must be at least 16, got {g.grid_resolution}")
         require(0.0 <= g.cull_margin_deg < 90.0, f"cull_margin_deg must be in 0..90 degrees, got {g.cull_margin_deg}")
+        require(self.texture.soft_silhouettes in ("auto", "on", "off"),
+                f"soft_silhouettes must be auto, on or off, got {self.texture.soft_silhouettes!r}")
         require(g.core_level in ("surface", "colour"),
                 f"core_level must be surface or colour, got {g.core_level!r}")
         require(g.enclose_fringe in ("auto", "on", "off"),

@@ -129,6 +129,28 @@ void main() {
 """
 
 
+def quad_uvs(uv0, uv_scale, res: int):
+    """The uvs :data:`VERT` interpolates at the pixel centres of a res x res :func:`draw_fullscreen`: ((res, res,
+    2) float32 uv, (res, res) t.x, (res, res) t.y)."""
+    t = (np.arange(res, dtype=np.float32) + 0.5) / res
+    ty, tx = np.meshgrid(t, t, indexing="ij")
+    return np.stack([uv0[0] + tx * uv_scale[0], uv0[1] + ty * uv_scale[1]], -1).astype(np.float32), tx, ty
+
+
+def draw_fullscreen(moderngl, ctx, prog, res: int) -> np.ndarray:
+    """Draw ``prog`` (vertex stage :data:`VERT`) over a res x res float framebuffer: (res, res, 3) float32,
+    row r is t.y = (r + 0.5) / res."""
+    quad = ctx.buffer(np.float32([-1, -1, 1, -1, -1, 1, 1, 1]).tobytes())
+    vao = ctx.vertex_array(prog, [(quad, "2f", "in_pos")])
+    color = ctx.texture((res, res), 4, dtype="f4")
+    fbo = ctx.framebuffer(color_attachments=[color])
+    fbo.use()
+    ctx.viewport = (0, 0, res, res)
+    fbo.clear(0.0, 0.0, 0.0, 0.0)
+    vao.render(moderngl.TRIANGLE_STRIP)
+    return np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(res, res, 4)[..., :3]
+
+
 def gl_context():
     moderngl = pytest.importorskip("moderngl")
     try:
@@ -165,21 +187,11 @@ def test_glsl_parity_with_torch(use_viewdir, dim, use_facing):
         prog["u_codebook"].value = 1
         t_idx.use(0)
         t_cb.use(1)
-        quad = ctx.buffer(np.float32([-1, -1, 1, -1, -1, 1, 1, 1]).tobytes())
-        vao = ctx.vertex_array(prog, [(quad, "2f", "in_pos")])
-        color = ctx.texture((res, res), 4, dtype="f4")
-        fbo = ctx.framebuffer(color_attachments=[color])
-        fbo.use()
-        ctx.viewport = (0, 0, res, res)
-        fbo.clear(0.0, 0.0, 0.0, 0.0)
-        vao.render(moderngl.TRIANGLE_STRIP)
-        gl = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(res, res, 4)[..., :3]
+        gl = draw_fullscreen(moderngl, ctx, prog, res)
     finally:
         ctx.release()
     # torch reference on the same uv / dirs (row r of the readback is t.y = (r + 0.5) / res)
-    t = (np.arange(res, dtype=np.float32) + 0.5) / res
-    ty, tx = np.meshgrid(t, t, indexing="ij")
-    uv = np.stack([uv0[0] + tx * uv_scale[0], uv0[1] + ty * uv_scale[1]], -1).astype(np.float32)
+    uv, tx, ty = quad_uvs(uv0, uv_scale, res)
     world = np.stack([2 * tx - 1, np.zeros_like(tx), 2 * ty - 1], -1)
     d = world - cam
     dirs = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)

@@ -6,7 +6,7 @@ import torch
 
 from neuras_distill.bake.plain_texture import plain_fragment_shader, plain_texture, texel_view_inputs
 from neuras_distill.neural.texture import bilinear_corners
-from test_bake import VERT, gl_context, make_model
+from test_bake import VERT, draw_fullscreen, gl_context, make_model, quad_uvs
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -52,19 +52,10 @@ def test_the_plain_shader_plays_the_texture_bilinearly_like_torch():
         tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         prog["u_rgb"].value = 0
         tex.use(0)
-        quad = ctx.buffer(np.float32([-1, -1, 1, -1, -1, 1, 1, 1]).tobytes())
-        vao = ctx.vertex_array(prog, [(quad, "2f", "in_pos")])
-        color = ctx.texture((res, res), 4, dtype="f4")
-        fbo = ctx.framebuffer(color_attachments=[color])
-        fbo.use()
-        ctx.viewport = (0, 0, res, res)
-        vao.render(moderngl.TRIANGLE_STRIP)
-        gl = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(res, res, 4)[..., :3]
+        gl = draw_fullscreen(moderngl, ctx, prog, res)
     finally:
         ctx.release()
-    t = (np.arange(res, dtype=np.float32) + 0.5) / res
-    ty, tx = np.meshgrid(t, t, indexing="ij")
-    uv = np.stack([uv0[0] + tx * uv_scale[0], uv0[1] + ty * uv_scale[1]], -1).reshape(-1, 2)
+    uv = quad_uvs(uv0, uv_scale, res)[0].reshape(-1, 2)
     idx, wts = bilinear_corners(torch.from_numpy(uv), h, w)
     ref = (wts[..., None] * torch.from_numpy(rgb.reshape(-1, 3))[idx]).sum(1).numpy().reshape(res, res, 3)
     assert np.abs(gl - ref).max() < 1e-5

@@ -147,10 +147,15 @@ def _plan_steps(plan: dict, mesh, tex_res: int, left_out: list) -> None:
     left_out.append({"component": "training beyond the atlas's needs", "reason": why})
 
 
-def _resolve_silhouette_blend(fringe_pixels: float, train: Cameras, test: Cameras, left_out: list) -> bool:
+def _resolve_silhouette_blend(mode: str, fringe_pixels: float, train: Cameras, test: Cameras,
+                              left_out: list) -> bool:
     """Whether the bundle plays with the soft-silhouette pass: when the field's fringe, ``fringe_pixels`` wide in
     the training views, is at least ``decisions.SILHOUETTE_BLEND_MIN_PIXELS`` wide at the held-out (playing)
-    resolution; otherwise left out with the reason."""
+    resolution (``mode`` "auto"; "on" / "off" force it); otherwise left out with the reason."""
+    if mode != "auto":
+        if mode == "off":
+            left_out.append({"component": "soft-silhouette pass", "reason": "turned off by configuration"})
+        return mode == "on"
     width = fringe_pixels * float(test.width) / float(train.width)
     if width >= decisions.SILHOUETTE_BLEND_MIN_PIXELS:
         return True
@@ -448,7 +453,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                   extra_manifest={"left_out": left_out, "view_dependence": use_viewdir,
                                   "cull_back_faces": cfg.geometry.cull_back_faces,
                                   "silhouette_blend": _resolve_silhouette_blend(
-                                      decisions.fringe_width_pixels(train_opacity), train, test, left_out)},
+                                      cfg.texture.soft_silhouettes, decisions.fringe_width_pixels(train_opacity),
+                                      train, test, left_out)},
                   skybox=skybox, origin=origin)
     codes_total = t.num_codes
     codes_kept = int(bundle.manifest.get("num_codes", codes_total))
