@@ -92,6 +92,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=512)
     p.add_argument("--height", type=int, default=512)
     p.add_argument("--out", default=None, help="folder for the frames (default: <bundle>/../orbit)")
+
+    p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file)")
+    p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
+    p.add_argument("--format", required=True, metavar="FORMAT",
+                   help=f"output format: {', '.join(EXPORT_FORMATS)} (gltf: glTF 2.0 binary, the mesh with its "
+                        "plain RGB texture, unlit, plus the whole neural bundle inside; load_bundle reads it)")
+    p.add_argument("--out", required=True, help="output file (gltf: a .glb path; an existing file is replaced "
+                                                "only when neuras-distill wrote it)")
     return parser
 
 
@@ -256,6 +264,27 @@ def _view(args) -> int:
     return 0
 
 
+def _export_gltf(args) -> int:
+    from .bake.gltf import export_gltf
+
+    out = export_gltf(args.bundle, args.out)
+    print(f"wrote {out} ({out.stat().st_size} bytes)")
+    return 0
+
+
+#: ``export --format`` values and their writers (each raises BadInputError for bad input, writes atomically).
+EXPORT_FORMATS = {"gltf": _export_gltf}
+
+
+def _export(args) -> int:
+    from .errors import BadInputError
+
+    writer = EXPORT_FORMATS.get(args.format)
+    if writer is None:
+        raise BadInputError(f"unknown --format {args.format!r}; known formats: {', '.join(EXPORT_FORMATS)}")
+    return writer(args)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from .errors import BadInputError
@@ -273,6 +302,8 @@ def main(argv: list[str] | None = None) -> int:
             return _view(args)
         if args.command == "check":
             return _check(args)
+        if args.command == "export":
+            return _export(args)
     except BadInputError as exc:
         print(f"neuras-distill: error: {exc}", file=sys.stderr)
         return 2

@@ -25,4 +25,12 @@ if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
   .venv/bin/python -m pip install -q "torch==2.13.0"
 fi
 .venv/bin/python -m pip install -q -e ".[test]"
+# the Khronos glTF-Validator (tests/test_gltf.py, scripts/gltf_validate.mjs) into .tools/ when node and npm exist
+if command -v node >/dev/null 2>&1 && command -v npm >/dev/null 2>&1; then
+  [ -d .tools/node_modules/gltf-validator ] \
+    || npm install --silent --no-fund --no-audit --prefix .tools gltf-validator@2.0.0-dev.3.10 >/dev/null \
+    || echo "setup: npm install gltf-validator failed; the glTF validation test will be skipped"
+else
+  echo "setup: no node/npm; the glTF validation test will be skipped"
+fi
 echo "setup: done (.venv ready)"

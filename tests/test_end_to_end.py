@@ -47,6 +47,19 @@ def test_report_has_the_contract(small_run):
     assert sum(rep["stage_seconds"].values()) <= rep["distill_seconds"] + 1e-6
 
 
+def test_the_bundle_carries_its_plain_texture_and_exports_to_gltf(small_run, tmp_path):
+    from neuras_distill.bake.gltf import export_gltf
+
+    result, out = small_run
+    bundle = nd.load_bundle(out / "bundle")
+    res = result.report["texture_resolution"]
+    side = res if isinstance(res, int) else res[0]
+    assert bundle.plain_rgb.shape == (side, side, 3) and bundle.plain_rgb.std() > 1.0
+    assert result.report["plain_texture"]["texture"] == [side, side]
+    glb = export_gltf(out / "bundle", tmp_path / "run.glb")
+    assert np.array_equal(nd.load_bundle(glb).plain_rgb, bundle.plain_rgb)
+
+
 def test_quality_and_parity(small_run):
     result, _ = small_run
     rep = result.report

@@ -16,6 +16,13 @@ Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature
     sky_index.png        only with skyboxes: 16-bit PNG of the skybox atlas's code indices
     sky_codebook.npy     only with skyboxes: float32 (K_sky, ceil(D/4), 4)
     sky.frag             only with skyboxes: the skybox pass's fragment shader (``bake/glsl_sky.py``)
+    plain_rgb.png        optional (runs since session 8 write it): 8-bit RGB PNG, (H, W) of the feature atlas,
+                         the plain texture (``bake/plain_texture.py``: the model once per texel, gutters padded),
+                         values as displayed (sRGB as stored), row 0 = v = 0 like the index map; what the glTF
+                         export (``bake/gltf.py``) hands other engines as base colour. Never bound by the player.
+
+A bundle also travels as one glTF binary (``bake/gltf.py``): :func:`load_bundle` given a ``.glb`` file reads the
+same files, byte for byte, from its ``NEURAS_bundle`` extension and validates them exactly like a folder's.
 
 Textures are named by the sampler they bind to: ``u_index`` (uint16 (H, W)) and ``u_codebook``, and with
 skyboxes ``u_sky_index`` and ``u_sky_codebook``.
@@ -51,6 +58,7 @@ READABLE_VERSIONS = (1, 2, 3)
 MAX_CODES = 65535
 FILES = ("manifest.json", "mesh.npz", "feature_index.png", "codebook.npy", "shader.frag")
 SKY_FILES = ("sky_index.png", "sky_codebook.npy", "sky.frag")
+PLAIN_FILE = "plain_rgb.png"
 
 
 def float16_feature_nbytes(height: int, width: int, dim: int) -> int:
@@ -71,6 +79,9 @@ class Bundle:
         vertex_shader: optional GLSL source saved as shader.vert (the playback stage owns it).
         sky_fragment_shader: the skybox pass's GLSL source, or None for a bundle without skyboxes (then
             ``textures`` has no ``u_sky_*`` entries and ``manifest`` no ``skybox``).
+        plain_rgb: optional uint8 (H, W, 3) plain RGB texture over the mesh's UVs (row 0 = v = 0), saved as
+            plain_rgb.png; not a sampler of the fragment shader (so not in ``textures``). None: not baked
+            (bundles from before session 8).
     """
 
     mesh: MeshData
@@ -80,6 +91,7 @@ class Bundle:
     manifest: dict = field(default_factory=dict)
     vertex_shader: str | None = None
     sky_fragment_shader: str | None = None
+    plain_rgb: np.ndarray | None = None
 
     @property
     def origin(self) -> np.ndarray:
@@ -92,6 +104,11 @@ class Bundle:
 
     def __post_init__(self) -> None:
         self.background_color = np.asarray(self.background_color, dtype=np.float32).reshape(3)
+        if self.plain_rgb is not None:
+            self.plain_rgb = np.ascontiguousarray(self.plain_rgb)
+            if self.plain_rgb.dtype != np.uint8 or self.plain_rgb.ndim != 3 or self.plain_rgb.shape[2] != 3:
+                raise ValueError(f"plain_rgb must be a uint8 (H, W, 3) array, got {self.plain_rgb.dtype} "
+                                 f"{self.plain_rgb.shape}")
 
     # ------------------------------------------------------------------ encoding
     def _encode(self) -> dict[str, bytes]:
@@ -114,6 +131,10 @@ class Bundle:
             np.save(buf, np.ascontiguousarray(self.textures["u_sky_codebook"], dtype=np.float32), allow_pickle=False)
             files["sky_codebook.npy"] = buf.getvalue()
             files["sky.frag"] = self.sky_fragment_shader.encode("utf-8")
+        if self.plain_rgb is not None:
+            buf = io.BytesIO()
+            Image.fromarray(self.plain_rgb, mode="RGB").save(buf, format="PNG")
+            files[PLAIN_FILE] = buf.getvalue()
         core_faces = _core_faces(m.core_faces, m.num_faces, "the mesh")
         manifest = dict(self.manifest)
         manifest.update(format=FORMAT, format_version=FORMAT_VERSION if core_faces is None else TWO_LAYER_FORMAT_VERSION,
@@ -244,15 +265,37 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
 
 
 def load_bundle(directory) -> Bundle:
-    """Read and validate a saved bundle. Raises BadInputError naming the missing or corrupt file."""
+    """Read and validate a saved bundle: its folder, or a glTF binary (``.glb``) written by ``bake/gltf.py``
+    (the same files, carried in the ``NEURAS_bundle`` extension). Raises BadInputError naming the missing or
+    corrupt file."""
     d = Path(directory)
+    if d.is_file():
+        from .gltf import read_bundle_files       # only for .glb files: the folder path never imports it
+
+        files = read_bundle_files(d)
+        return _load_files(d, files.get, lambda name: name in files)
     if not d.is_dir():
         raise BadInputError(f"bundle folder {d} does not exist")
-    missing = [f for f in FILES if not (d / f).is_file()]
+    return _load_files(d, lambda name: (d / name).read_bytes() if (d / name).is_file() else None,
+                       lambda name: (d / name).is_file())
+
+
+def read_bundle_file_bytes(directory) -> dict[str, bytes]:
+    """{file name: bytes} of every file of the bundle folder ``directory`` (manifest.json and every file it
+    lists), after :func:`load_bundle` validated them (checksums included): what a lossless copy carries."""
+    d = Path(directory)
+    load_bundle(d)
+    manifest = json.loads((d / "manifest.json").read_text("utf-8"))
+    return {name: (d / name).read_bytes() for name in ("manifest.json", *sorted(manifest["files"]))}
+
+
+def _load_files(d: Path, read, exists) -> Bundle:
+    """The bundle whose files ``read(name)`` returns (bytes or None when absent); ``d`` names it in errors."""
+    missing = [f for f in FILES if not exists(f)]
     if missing:
         raise BadInputError(f"bundle {d} is missing {', '.join(missing)}")
     try:
-        manifest = json.loads((d / "manifest.json").read_text("utf-8"))
+        manifest = json.loads(read("manifest.json").decode("utf-8"))
     except (ValueError, UnicodeDecodeError) as exc:
         raise BadInputError(f"bundle {d}: manifest.json is not valid JSON ({exc})") from exc
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
@@ -262,11 +305,10 @@ def load_bundle(directory) -> Bundle:
                             f"(this version reads {', '.join(map(str, READABLE_VERSIONS))})")
     raw = {}
     for name, info in (manifest.get("files") or {}).items():
-        p = d / name
-        if not p.is_file():
+        if name == "manifest.json" or "/" in name or "\\" in name or not exists(name):
             raise BadInputError(f"bundle {d} is missing {name}")
-        raw[name] = p.read_bytes()
-        if hashlib.sha256(raw[name]).hexdigest() != info.get("sha256"):
+        raw[name] = read(name)
+        if not isinstance(info, dict) or hashlib.sha256(raw[name]).hexdigest() != info.get("sha256"):
             raise BadInputError(f"bundle {d}: {name} is corrupt (checksum differs from manifest.json)")
     needed = FILES[1:] + (SKY_FILES if "skybox" in manifest else ())
     for name in needed:
@@ -308,6 +350,17 @@ def load_bundle(directory) -> Bundle:
         sky_frag = raw["sky.frag"].decode("utf-8") if "skybox" in manifest else None
     except UnicodeDecodeError as exc:
         raise corrupt("shader", exc) from exc
+    plain = None
+    if PLAIN_FILE in raw:
+        try:
+            with Image.open(io.BytesIO(raw[PLAIN_FILE])) as im:
+                if im.mode != "RGB":
+                    raise ValueError(f"mode {im.mode}, not 8-bit RGB")
+                plain = np.array(im)
+        except Exception as exc:  # noqa: BLE001
+            raise corrupt(PLAIN_FILE, exc) from exc
+        if plain.shape[:2] != (h, w):
+            raise BadInputError(f"bundle {d}: {PLAIN_FILE} is {plain.shape[:2]}, manifest says {(h, w)}")
     textures = {"u_index": index, "u_codebook": codebook}
     if "skybox" in manifest:
         try:
@@ -323,4 +376,4 @@ def load_bundle(directory) -> Bundle:
     bg = manifest.get("background_color")
     manifest = {k: v for k, v in manifest.items() if k not in ("format", "format_version", "files", "background_color")}
     return Bundle(mesh=mesh, textures=textures, fragment_shader=frag, background_color=np.asarray(bg, np.float32),
-                  manifest=manifest, vertex_shader=vert, sky_fragment_shader=sky_frag)
+                  manifest=manifest, vertex_shader=vert, sky_fragment_shader=sky_frag, plain_rgb=plain)

@@ -1,6 +1,8 @@
 """The plain RGB texture of a trained model: what the bundle would be without its neural shader.
 
-Owns: :func:`texel_view_inputs`, :func:`plain_texture`, :func:`plain_fragment_shader` and :func:`plain_bundle`.
+Owns: :func:`texel_view_inputs`, :func:`plain_texture`, :func:`chart_mask`, :func:`pad_gutters`,
+:func:`plain_texture_rgb8` (what a run stores as the bundle's ``plain_rgb.png``), :func:`plain_fragment_shader`
+and :func:`plain_bundle`.
 
 Each texel's colour is the model's own output for that texel, evaluated once: the texel's (quantized) feature
 through the shader of the layer that texel belongs to, with the mean view input the training views saw it
@@ -8,6 +10,11 @@ with (unit mean direction, mean facing cosine, the majority layer). Texels no tr
 of the nearest seen texel. Played with bilinear filtering in the same GL pipeline (same mesh, same UVs, same
 draw calls), it is the baseline the neural shader is measured against (``report.json["plain_texture"]``) and
 the texture other engines get (glTF's base colour).
+
+Gutters: texels no bilinear lookup inside a UV chart reaches (outside the charts' texels dilated by two) take
+the colour of the nearest texel that one does reach (a full nearest-texel fill, not just a few texels), so an
+engine's bilinear or mipmapped sampling at a chart border never blends in unrelated colours; the texels lookups
+inside the charts reach keep the model's own colour, so the bundle's bilinear playback is unchanged by the fill.
 
 Frames: directions in the bundle's frame (the training G-buffers' frame: relative to the run's origin).
 """
@@ -74,6 +81,40 @@ def plain_texture(model, uv, coverage, view_inputs) -> np.ndarray:
     return rgb.reshape(h, w, 3).clamp(0.0, 1.0).numpy().astype(np.float32)
 
 
+def chart_mask(uvs, faces, height: int, width: int, supersample: int = 4) -> np.ndarray:
+    """(H, W) bool: texels a UV triangle touches (``faces`` (F, 3) into ``uvs`` (V, 2), u right, v = row / H),
+    rasterized by PIL at ``supersample`` x the atlas with outlines, so thin triangles count too."""
+    from PIL import Image, ImageDraw
+
+    s = int(supersample)
+    img = Image.new("L", (width * s, height * s), 0)
+    draw = ImageDraw.Draw(img)
+    tri = np.asarray(uvs, np.float64)[np.asarray(faces, np.int64)] * np.float64([width * s, height * s])
+    for t in tri.reshape(-1, 6).tolist():
+        draw.polygon(t, fill=1, outline=1)
+    fine = np.asarray(img, bool).reshape(height, s, width, s)
+    return fine.any(axis=(1, 3))
+
+
+def pad_gutters(rgb: np.ndarray, mask: np.ndarray, margin: int = 2) -> np.ndarray:
+    """``rgb`` (H, W, C) with every texel farther than ``margin`` texels (8-neighbourhood) from ``mask`` (H, W)
+    replaced by the colour of the nearest texel within it; unchanged when ``mask`` is empty."""
+    keep = ndimage.binary_dilation(mask, structure=np.ones((3, 3), bool), iterations=margin) if margin else mask
+    if not keep.any() or keep.all():
+        return rgb.copy()
+    _, (jj, ii) = ndimage.distance_transform_edt(~keep, return_indices=True)
+    return rgb[jj, ii]
+
+
+def plain_texture_rgb8(model, mesh, uv, coverage, view_inputs) -> np.ndarray:
+    """The bundle's stored plain texture: :func:`plain_texture` with its gutters padded (:func:`pad_gutters`
+    over :func:`chart_mask` of ``mesh``'s UVs), rounded to uint8 (H, W, 3) (values as displayed)."""
+    rgb = plain_texture(model, uv, coverage, view_inputs)
+    h, w = rgb.shape[:2]
+    rgb = pad_gutters(rgb, chart_mask(mesh.uvs, mesh.faces, h, w))
+    return np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
+
+
 def plain_fragment_shader(width: int, height: int) -> str:
     """GLSL 330 fragment shader playing an RGB float texture ``u_rgb`` (H x W x 3, texelFetch only) with the
     bilinear-corner arithmetic of ``neural.texture.bilinear_corners``."""
@@ -111,4 +152,5 @@ def plain_bundle(bundle: Bundle, rgb: np.ndarray) -> Bundle:
                   manifest=manifest, vertex_shader=bundle.vertex_shader)
 
 
-__all__ = ["texel_view_inputs", "plain_texture", "plain_fragment_shader", "plain_bundle"]
+__all__ = ["texel_view_inputs", "plain_texture", "chart_mask", "pad_gutters", "plain_texture_rgb8",
+           "plain_fragment_shader", "plain_bundle"]

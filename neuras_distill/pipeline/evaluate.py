@@ -226,12 +226,17 @@ def plain_texture_baseline(model, bundle, train_gbuffer, train_inputs, test: Cam
                            bundle_images: list, coverages: list, fps_frames: int) -> dict:
     """What the neural shader buys: the model's plain RGB texture (``bake.plain_texture``) played in the same GL
     pipeline on the held-out cameras (the neural bundle's pixels where the mesh covers nothing, so a skybox
-    counts alike), scored against the field like the bundle. Returns the report's ``plain_texture`` entry."""
+    counts alike), scored against the field like the bundle. Returns the report's ``plain_texture`` entry.
+    The texture is the bundle's stored one (``bundle.plain_rgb``, 8-bit, gutters padded: what the glTF export
+    carries) when it has one, else computed here from ``model`` and the training G-buffer."""
     from ..bake.plain_texture import plain_bundle, plain_texture
     from ..flip_metric import flip
     from ..playback.renderer import BundleRenderer
 
-    rgb = plain_texture(model, train_gbuffer.uv, train_gbuffer.coverage, train_inputs)
+    if getattr(bundle, "plain_rgb", None) is not None:
+        rgb = bundle.plain_rgb.astype(np.float32) / np.float32(255.0)
+    else:
+        rgb = plain_texture(model, train_gbuffer.uv, train_gbuffer.coverage, train_inputs)
     with BundleRenderer(plain_bundle(bundle, rgb)) as player:
         images = [np.where(cov[..., None], player.render(test, i, skybox=False), full)
                   for i, (cov, full) in enumerate(zip(coverages, bundle_images))]
@@ -242,4 +247,5 @@ def plain_texture_baseline(model, bundle, train_gbuffer, train_inputs, test: Cam
             "psnr_per_view": quality["psnr_per_view"], "frame_time_ms": timing["median_ms"],
             "texture": [int(rgb.shape[0]), int(rgb.shape[1])],
             "how": "the neural shader evaluated once per texel at the mean view input its training pixels had, "
-                   "played bilinearly in the same GL pipeline (mesh, draw calls, cameras)"}
+                   "stored in 8 bits (the bundle's plain_rgb.png, the glTF export's base colour), played "
+                   "bilinearly in the same GL pipeline (mesh, draw calls, cameras)"}

@@ -463,6 +463,10 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                          "reason": f"{codes_total - codes_kept} of {codes_total} codebook entries are used by no "
                                    "texel and were dropped"})
     bundle.manifest["left_out"] = left_out
+    # the plain RGB texture (the glTF export's base colour, the report's baseline) travels in the bundle
+    from ..bake.plain_texture import plain_texture_rgb8
+
+    bundle.plain_rgb = plain_texture_rgb8(model, bundle.mesh, gbuffer.uv, gbuffer.coverage, dirs)
     if root is not None:
         bundle.save(root / "bundle")
     stages.done(num_codes=codes_kept)

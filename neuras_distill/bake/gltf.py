@@ -1,0 +1,253 @@
+"""glTF 2.0 binary (``.glb``) export of a bundle, and the reader that lets ``load_bundle`` open one.
+
+Owns: :func:`export_gltf` (``neuras-distill export BUNDLE --format gltf --out scene.glb``), :func:`glb_bytes`,
+:func:`read_bundle_files`, :func:`written_by_us`. The GLB is written by hand (a JSON chunk and one binary chunk:
+no glTF library), so this module is the only one that knows the layout.
+
+Layout (one buffer, the GLB's binary chunk; every buffer view starts on a 4-byte boundary)::
+
+    scenes[0] -> nodes[0] -> meshes[0]: one triangle primitive, no node transform
+        POSITION    float32 (V, 3), world units: the bundle's vertices (relative to ``bundle.origin``) plus the
+                    origin, summed in float64 and rounded once to float32; the world frame's axes as they are
+                    (no Y-up conversion: the bundle's frame is the field's)
+        TEXCOORD_0  float32 (V, 2), the bundle's uvs unchanged: glTF's v runs down the image, and the texture's
+                    first row is v = 0 (the bundle's convention), so no flip is needed
+        indices     uint16 (V < 65535) or uint32
+    materials[0]: KHR_materials_unlit, baseColorTexture = the bundle's plain_rgb.png (8-bit RGB, values as
+        displayed, i.e. sRGB-encoded base colour as glTF expects), sampler LINEAR / LINEAR_MIPMAP_LINEAR,
+        CLAMP_TO_EDGE; doubleSided unless the manifest says ``cull_back_faces``
+    extensions.NEURAS_bundle = {"version": 1, "files": {file name: buffer view index}}: every file of the bundle
+        folder (manifest.json and every file it lists with its sha256), byte for byte; plain_rgb.png's view is
+        the image's own (stored once). Listed in ``extensionsUsed``, not ``extensionsRequired``: an engine that
+        does not know it ignores it and shows the textured mesh.
+
+Decisions: a two-layer bundle's glTF mesh is its core only (faces[:core_faces], vertices compacted): the shell is
+a fringe that the player draws behind any core fragment (``playback/shaders.py``), a rule no generic engine has,
+so drawn opaque it would hide the core; it travels in the extension with the rest. Skyboxes likewise travel only
+in the extension. A bundle without plain_rgb.png (baked before the runs stored it) is refused with a message
+saying to re-run: its MLP exists only as GLSL in the bundle, so a fallback would need a GL pass in UV space with
+an invented view input (say, opposite the normal), a texture the report's baseline never measured.
+
+``load_bundle("scene.glb")`` reads the files back through :func:`read_bundle_files` and validates them exactly
+as a folder's (checksums from manifest.json), so the GLB plays identically to the folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..errors import BadInputError
+
+EXTENSION = "NEURAS_bundle"
+EXTENSION_VERSION = 1
+GENERATOR = "neuras-distill"
+_MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942        # b"glTF", b"JSON", b"BIN\0" (little endian)
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_FLOAT, _UNSIGNED_SHORT, _UNSIGNED_INT = 5126, 5123, 5125
+_LINEAR, _LINEAR_MIPMAP_LINEAR, _CLAMP_TO_EDGE = 9729, 9987, 33071
+
+
+class _Binary:
+    """The binary chunk under construction: 4-byte aligned buffer views."""
+
+    def __init__(self):
+        self.parts: list[bytes] = []
+        self.size = 0
+        self.views: list[dict] = []
+
+    def add(self, data: bytes, target: int | None = None, name: str | None = None) -> int:
+        view = {"buffer": 0, "byteOffset": self.size, "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        if name is not None:
+            view["name"] = name
+        pad = (-len(data)) % 4
+        self.parts += [data, b"\0" * pad]
+        self.size += len(data) + pad
+        self.views.append(view)
+        return len(self.views) - 1
+
+
+def _glb_mesh(bundle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(positions float32 (V', 3) in world units, uvs float32 (V', 2), faces (F', 3) into them) of the faces an
+    engine should draw: all of a single-layer mesh, the core of a two-layer one; unused vertices dropped."""
+    mesh = bundle.mesh
+    faces = np.asarray(mesh.faces, np.int64)
+    if mesh.core_faces:                                   # None: one layer; 0: no core, draw what there is
+        faces = faces[:mesh.core_faces]
+    if not len(faces):
+        raise BadInputError("the bundle's mesh has no faces to export")
+    used, remap = np.unique(faces.reshape(-1), return_inverse=True)
+    world = np.asarray(mesh.vertices, np.float64)[used] + bundle.origin[None, :]
+    return world.astype(np.float32), np.asarray(mesh.uvs, np.float32)[used], remap.reshape(-1, 3)
+
+
+def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
+    """The GLB of ``bundle`` (a loaded :class:`~neuras_distill.bake.bundle.Bundle` with ``plain_rgb``) carrying
+    ``files`` ({name: bytes}: the bundle folder's files, ``bundle.read_bundle_file_bytes``) losslessly."""
+    from .bundle import PLAIN_FILE
+
+    if PLAIN_FILE not in files:
+        raise BadInputError("the bundle has no plain RGB texture (plain_rgb.png; bundles baked by older versions "
+                            "lack it): re-run the distillation to export it as glTF")
+    positions, uvs, faces = _glb_mesh(bundle)
+    binary = _Binary()
+    small = len(positions) < 65535                        # 65535 is uint16's primitive-restart value
+    index_type, index_dtype = (_UNSIGNED_SHORT, np.uint16) if small else (_UNSIGNED_INT, np.uint32)
+    indices = binary.add(faces.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER, "indices")
+    position = binary.add(positions.tobytes(), _ARRAY_BUFFER, "POSITION")
+    texcoord = binary.add(uvs.tobytes(), _ARRAY_BUFFER, "TEXCOORD_0")
+    file_views = {}
+    for name in ("manifest.json", *sorted(n for n in files if n != "manifest.json")):
+        file_views[name] = binary.add(files[name], None, name)
+    accessors = [
+        {"bufferView": indices, "componentType": index_type, "count": int(faces.size), "type": "SCALAR"},
+        {"bufferView": position, "componentType": _FLOAT, "count": len(positions), "type": "VEC3",
+         "min": [float(x) for x in positions.min(0)], "max": [float(x) for x in positions.max(0)]},
+        {"bufferView": texcoord, "componentType": _FLOAT, "count": len(uvs), "type": "VEC2"},
+    ]
+    doc = {
+        "asset": {"version": "2.0", "generator": f"{GENERATOR} {__version__}"},
+        "extensionsUsed": ["KHR_materials_unlit", EXTENSION],
+        "extensions": {EXTENSION: {"version": EXTENSION_VERSION, "files": file_views}},
+        "scene": 0,
+        "scenes": [{"name": "neuras bundle", "nodes": [0]}],
+        "nodes": [{"name": "neuras bundle", "mesh": 0}],
+        "meshes": [{"name": "bundle mesh" + (" (core)" if bundle.mesh.core_faces else ""),
+                    "primitives": [{"attributes": {"POSITION": 1, "TEXCOORD_0": 2}, "indices": 0, "material": 0,
+                                    "mode": 4}]}],
+        "materials": [{"name": "plain texture (unlit)",
+                       "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0,
+                                                "roughnessFactor": 1.0},
+                       "doubleSided": not bool(bundle.manifest.get("cull_back_faces", False)),
+                       "extensions": {"KHR_materials_unlit": {}}}],
+        "textures": [{"sampler": 0, "source": 0}],
+        "samplers": [{"magFilter": _LINEAR, "minFilter": _LINEAR_MIPMAP_LINEAR, "wrapS": _CLAMP_TO_EDGE,
+                      "wrapT": _CLAMP_TO_EDGE}],
+        "images": [{"name": PLAIN_FILE, "bufferView": file_views[PLAIN_FILE], "mimeType": "image/png"}],
+        "accessors": accessors,
+        "bufferViews": binary.views,
+        "buffers": [{"byteLength": binary.size}],
+    }
+    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    text += b" " * ((-len(text)) % 4)
+    body = b"".join(binary.parts)
+    total = 12 + 8 + len(text) + 8 + len(body)
+    return b"".join([struct.pack("<III", _MAGIC, 2, total), struct.pack("<II", len(text), _JSON), text,
+                     struct.pack("<II", len(body), _BIN), body])
+
+
+def _parse_glb(path: Path, data: bytes) -> tuple[dict, bytes]:
+    """(JSON document, binary chunk) of a GLB, or BadInputError."""
+    bad = BadInputError(f"{path} is not a glTF binary (.glb) file")
+    if len(data) < 20:
+        raise bad
+    magic, version, length = struct.unpack_from("<III", data, 0)
+    if magic != _MAGIC or version != 2 or length > len(data):
+        raise bad
+    json_len, json_type = struct.unpack_from("<II", data, 12)
+    if json_type != _JSON or 20 + json_len > length:
+        raise bad
+    try:
+        doc = json.loads(data[20:20 + json_len].decode("utf-8"))
+    except (ValueError, UnicodeDecodeError):
+        raise bad from None
+    if not isinstance(doc, dict):
+        raise bad
+    body = b""
+    at = 20 + json_len
+    if at + 8 <= length:
+        bin_len, bin_type = struct.unpack_from("<II", data, at)
+        if bin_type == _BIN and at + 8 + bin_len <= length:
+            body = data[at + 8:at + 8 + bin_len]
+    return doc, body
+
+
+def read_bundle_files(path) -> dict[str, bytes]:
+    """{file name: bytes} of the bundle a GLB carries in its ``NEURAS_bundle`` extension (unchecked: the
+    checksums are ``load_bundle``'s job). BadInputError when ``path`` is no GLB or carries no bundle."""
+    path = Path(path)
+    doc, body = _parse_glb(path, path.read_bytes())
+    ext = (doc.get("extensions") or {}).get(EXTENSION)
+    if not isinstance(ext, dict) or not isinstance(ext.get("files"), dict):
+        raise BadInputError(f"{path} is a glTF file without a neuras bundle (no {EXTENSION} extension)")
+    if ext.get("version") != EXTENSION_VERSION:
+        raise BadInputError(f"{path}: {EXTENSION} version {ext.get('version')} is not supported "
+                            f"(this version reads {EXTENSION_VERSION})")
+    views = doc.get("bufferViews") or []
+    files = {}
+    for name, i in ext["files"].items():
+        if not isinstance(i, int) or not 0 <= i < len(views) or not isinstance(views[i], dict):
+            raise BadInputError(f"{path}: {EXTENSION} names a missing buffer view for {name}")
+        start, size = views[i].get("byteOffset", 0), views[i].get("byteLength", -1)
+        if views[i].get("buffer") != 0 or not isinstance(start, int) or not isinstance(size, int) \
+                or start < 0 or size < 0 or start + size > len(body):
+            raise BadInputError(f"{path}: the buffer view of {name} lies outside the binary chunk")
+        files[name] = body[start:start + size]
+    return files
+
+
+def written_by_us(path) -> bool:
+    """Whether the file ``path`` is a GLB this module wrote (its asset.generator names neuras-distill)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(20)
+            if len(head) < 20:
+                return False
+            magic, version, _ = struct.unpack_from("<III", head, 0)
+            json_len, json_type = struct.unpack_from("<II", head, 12)
+            if magic != _MAGIC or version != 2 or json_type != _JSON or json_len > 1 << 26:
+                return False
+            doc = json.loads(f.read(json_len).decode("utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    if not isinstance(doc, dict) or not isinstance(doc.get("asset"), dict):
+        return False
+    return str((doc.get("asset") or {}).get("generator", "")).startswith(GENERATOR + " ")
+
+
+def export_gltf(bundle_path, out) -> Path:
+    """Write the bundle at ``bundle_path`` (a folder, or a GLB of ours) as the glTF binary ``out`` (.glb).
+
+    Validates everything first (the bundle with its checksums, the output path: absent or a GLB of ours), then
+    writes a temporary file beside ``out`` and renames it into place: on any error nothing is left behind.
+    Returns ``out``.
+    """
+    from .bundle import load_bundle, read_bundle_file_bytes
+
+    src, out = Path(bundle_path), Path(out)
+    if out.suffix.lower() != ".glb":
+        raise BadInputError(f"--out {out}: a glTF binary must end in .glb")
+    if out.exists() or out.is_symlink():
+        if out.is_dir():
+            raise BadInputError(f"output path {out} is a folder; choose a .glb file path for --out")
+        if not written_by_us(out):
+            raise BadInputError(f"output file {out} exists and was not written by neuras-distill; "
+                                "choose another --out or remove it")
+    if not src.exists():
+        raise BadInputError(f"bundle {src} does not exist")
+    bundle = load_bundle(src)
+    if bundle.plain_rgb is None:
+        raise BadInputError(f"bundle {src} has no plain RGB texture (plain_rgb.png; bundles baked by older "
+                            "versions lack it): re-run the distillation to export it as glTF")
+    files = read_bundle_files(src) if src.is_file() else read_bundle_file_bytes(src)
+    data = glb_bytes(bundle, files)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}-{int(time.time() * 1000)}"
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return out
+
+
+__all__ = ["EXTENSION", "export_gltf", "glb_bytes", "read_bundle_files", "written_by_us"]

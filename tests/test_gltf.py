@@ -1,0 +1,286 @@
+"""glTF export (bake/gltf.py, ``neuras-distill export --format gltf``) and the stored plain texture it carries.
+
+The GLB passes the Khronos glTF-Validator (npm ``gltf-validator`` in .tools/, installed by scripts/setup.sh), opens
+in trimesh at world positions with its texture, and ``load_bundle`` restores the bundle from it byte for byte,
+playing the same pixels as the folder.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import shutil
+import struct
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import neuras_distill as nd
+from neuras_distill.bake.bundle import bake, load_bundle, read_bundle_file_bytes
+from neuras_distill.bake.gltf import export_gltf, read_bundle_files
+from neuras_distill.bake.plain_texture import chart_mask, pad_gutters, plain_texture, plain_texture_rgb8
+from neuras_distill.cli import main
+from neuras_distill.errors import BadInputError
+from neuras_distill.geometry.mesh import MeshData
+from neuras_distill.playback.context import gl_available
+from neuras_distill.render.cameras import Cameras
+from test_bake import make_model, quad_mesh
+
+ROOT = Path(__file__).resolve().parents[1]
+NODE = shutil.which("node") or "/usr/bin/node"
+VALIDATOR = ROOT / ".tools" / "node_modules" / "gltf-validator"
+ORIGIN = np.array([1000.0, -20.0, 3.5])             # a scene away from the world origin: export must add it back
+
+_GL_OK, _GL_REASON = gl_available()
+needs_gl = pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def _random_gbuffer(n=2, size=10, seed=0):
+    gen = np.random.default_rng(seed)
+    dirs = gen.normal(size=(n, size, size, 3)).astype(np.float32)
+    return (gen.random((n, size, size, 2), dtype=np.float32), np.ones((n, size, size), bool),
+            dirs / np.linalg.norm(dirs, axis=-1, keepdims=True))
+
+
+def small_bundle(tmp_path, kind="single", name="b"):
+    """A saved bundle folder with a plain texture: ``single`` (a quad, texture from plain_texture_rgb8),
+    ``two-layer`` (core + shell spheres, two MLPs) or ``skybox`` (a quad with skybox layers)."""
+    if kind == "single":
+        model, mesh = make_model(h=6, w=8, k=8), quad_mesh()
+        mesh = MeshData(mesh.vertices, mesh.faces, mesh.uvs * 0.8 + 0.1)       # a gutter around the chart
+        b = bake(model, mesh, (0.1, 0.2, 0.3), origin=ORIGIN)
+        b.plain_rgb = plain_texture_rgb8(model, b.mesh, *_random_gbuffer())
+    elif kind == "two-layer":
+        from test_two_layer import two_spheres
+
+        b = bake(make_model(h=6, w=8, k=8, mesh_layers=2), two_spheres(), (0.1, 0.2, 0.3), origin=ORIGIN)
+        b.plain_rgb = np.random.default_rng(1).integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    else:
+        from neuras_distill.neural.skybox import SkyboxLayers
+        from test_skybox import _tiny_mesh_model, _trained_like
+
+        model, mesh = _tiny_mesh_model()
+        b = bake(model, mesh, (0, 0, 0), skybox=_trained_like(SkyboxLayers(ORIGIN, [2.0, 5.0], 4)), origin=ORIGIN)
+        b.plain_rgb = np.random.default_rng(2).integers(0, 256, (8, 8, 3), dtype=np.uint8)
+    return b.save(tmp_path / name)
+
+
+def _glb_json(path: Path) -> tuple[dict, bytes]:
+    data = path.read_bytes()
+    n = struct.unpack_from("<I", data, 12)[0]
+    m = struct.unpack_from("<I", data, 20 + n)[0]
+    return json.loads(data[20:20 + n]), data[28 + n:28 + n + m]
+
+
+# ------------------------------------------------------------------------------------------ the texture
+def test_gutters_take_the_nearest_chart_colour_and_chart_texels_keep_theirs():
+    mask = np.zeros((12, 12), bool)
+    mask[3:6, 2:5] = True
+    rgb = np.random.default_rng(0).random((12, 12, 3)).astype(np.float32)
+    out = pad_gutters(rgb, mask, margin=2)
+    keep = np.zeros_like(mask)
+    keep[1:8, 0:7] = True                                  # the chart dilated by two texels (8-neighbourhood)
+    assert np.array_equal(out[keep], rgb[keep])
+    assert np.array_equal(out[11, 11], rgb[7, 6]) and np.array_equal(out[0, 11], rgb[1, 6])
+    assert np.array_equal(out[11, 0], rgb[7, 0])
+    assert len(np.unique(out[~keep].reshape(-1, 3), axis=0)) < (~keep).sum()   # copies, not new colours
+
+
+def test_chart_mask_covers_the_uv_triangles_only():
+    uvs = np.float32([[0.0, 0.0], [0.5, 0.0], [0.0, 0.5]])
+    mask = chart_mask(uvs, np.array([[0, 1, 2]]), 16, 16)
+    assert mask[0, 0] and mask[3, 3] and mask[0, 7] and mask[7, 0]
+    assert not mask[9:, :].any() and not mask[:, 9:].any() and not mask[6, 6]
+
+
+def test_stored_plain_texture_is_the_model_rounded_with_padded_gutters(tmp_path):
+    model, mesh = make_model(h=6, w=8, k=8), quad_mesh()
+    mesh = MeshData(mesh.vertices, mesh.faces, mesh.uvs * 0.23 + 0.01)  # texels [0, 2) x [0, 2) of the atlas
+    gbuffer = _random_gbuffer()
+    rgb8 = plain_texture_rgb8(model, mesh, *gbuffer)
+    exact = np.clip(np.rint(plain_texture(model, *gbuffer) * 255), 0, 255).astype(np.uint8)
+    assert rgb8.dtype == np.uint8 and rgb8.shape == (6, 8, 3)
+    assert np.array_equal(rgb8[:4, :4], exact[:4, :4])                # the chart (2 x 2 texels) + two texels
+    assert np.array_equal(rgb8[5, 7], exact[3, 3]) and not np.array_equal(exact[5, 7], exact[3, 3])
+    b = bake(model, mesh, (0, 0, 0))
+    b.plain_rgb = rgb8
+    loaded = load_bundle(b.save(tmp_path / "b"))
+    assert np.array_equal(loaded.plain_rgb, rgb8) and "plain_rgb.png" in json.loads(
+        (tmp_path / "b" / "manifest.json").read_text())["files"]
+    assert "u_plain_rgb" not in loaded.textures and "plain_rgb" not in loaded.textures
+
+
+# ------------------------------------------------------------------------------------------ the GLB
+@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox"])
+def test_the_khronos_validator_finds_no_errors(tmp_path, kind):
+    if not Path(NODE).exists():
+        pytest.skip("no node to run the glTF validator")
+    if not VALIDATOR.is_dir():
+        pytest.skip("gltf-validator is not installed in .tools/ (scripts/setup.sh installs it when npm exists)")
+    glb = export_gltf(small_bundle(tmp_path, kind), tmp_path / "scene.glb")
+    run = subprocess.run([NODE, str(ROOT / "scripts" / "gltf_validate.mjs"), str(glb)], capture_output=True,
+                         text=True, timeout=120)
+    report = json.loads(run.stdout)
+    issues = report["issues"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+    assert run.returncode == 0
+    assert report["info"]["extensionsUsed"] == ["KHR_materials_unlit", "NEURAS_bundle"]
+    assert report["info"]["resources"][1]["image"]["format"] == "rgb"
+
+
+@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox"])
+def test_load_bundle_restores_every_file_byte_for_byte(tmp_path, kind):
+    folder = small_bundle(tmp_path, kind)
+    glb = export_gltf(folder, tmp_path / "scene.glb")
+    files = read_bundle_files(glb)
+    assert files == read_bundle_file_bytes(folder)
+    assert set(files) == {p.name for p in folder.iterdir()}
+    a, b = load_bundle(folder), nd.load_bundle(glb)
+    assert a.manifest == b.manifest and a.fragment_shader == b.fragment_shader
+    assert a.vertex_shader == b.vertex_shader and a.sky_fragment_shader == b.sky_fragment_shader
+    assert np.array_equal(a.plain_rgb, b.plain_rgb) and np.array_equal(a.mesh.vertices, b.mesh.vertices)
+    assert a.mesh.core_faces == b.mesh.core_faces
+    for name in a.textures:
+        assert np.array_equal(a.textures[name], b.textures[name]), name
+    doc, _ = _glb_json(glb)
+    assert "NEURAS_bundle" in doc["extensionsUsed"] and "NEURAS_bundle" not in doc.get("extensionsRequired", [])
+
+
+@needs_gl
+@pytest.mark.gl
+@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox"])
+def test_the_glb_plays_like_the_folder(tmp_path, kind):
+    from neuras_distill.playback.renderer import BundleRenderer
+
+    folder = small_bundle(tmp_path, kind)
+    glb = export_gltf(folder, tmp_path / "scene.glb")
+    centre = ORIGIN + ([0.5, 0.5, 0.0] if kind == "single" else 0.0)
+    cams = Cameras.orbit(centre, 2.0, 2, width=48, height=40, elevation_deg=55.0, phase_deg=20.0)
+    images = []
+    for path in (folder, glb):
+        with BundleRenderer(load_bundle(path)) as player:
+            images.append([player.render(cams, i) for i in range(len(cams))])
+    for a, b in zip(*images):
+        assert (np.abs(a - a.mean((0, 1))) > 1e-3).any()                       # something is drawn
+        mse = float(np.mean((a - b) ** 2))
+        assert 10 * math.log10(1.0 / max(mse, 1e-12)) >= 59.0
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("kind", ["single", "two-layer"])
+def test_trimesh_opens_it_in_world_units_with_the_texture(tmp_path, kind):
+    trimesh = pytest.importorskip("trimesh")
+    folder = small_bundle(tmp_path, kind)
+    bundle = load_bundle(folder)
+    glb = export_gltf(folder, tmp_path / "scene.glb")
+    scene = trimesh.load(glb, process=False)
+    (geom,) = scene.geometry.values()
+    faces = bundle.mesh.faces[:bundle.mesh.core_faces] if bundle.mesh.core_faces else bundle.mesh.faces
+    used = np.unique(faces)
+    world = bundle.mesh.vertices[used].astype(np.float64) + ORIGIN
+    assert len(geom.vertices) == len(used) and len(geom.faces) == len(faces)
+    np.testing.assert_allclose(scene.bounds, [world.min(0), world.max(0)], rtol=0, atol=1e-4)
+    np.testing.assert_allclose(geom.visual.uv, np.c_[bundle.mesh.uvs[used, 0], 1 - bundle.mesh.uvs[used, 1]],
+                               atol=1e-6)                                     # trimesh flips v to GL's
+    image = np.asarray(geom.visual.material.baseColorTexture.convert("RGB"))
+    assert np.array_equal(image, bundle.plain_rgb)
+
+
+def test_the_base_colour_is_the_stored_plain_texture(tmp_path):
+    folder = small_bundle(tmp_path)
+    glb = export_gltf(folder, tmp_path / "scene.glb")
+    doc, body = _glb_json(glb)
+    material = doc["materials"][0]
+    assert material["extensions"] == {"KHR_materials_unlit": {}}
+    texture = doc["textures"][material["pbrMetallicRoughness"]["baseColorTexture"]["index"]]
+    view = doc["bufferViews"][doc["images"][texture["source"]]["bufferView"]]
+    png = body[view["byteOffset"]:view["byteOffset"] + view["byteLength"]]
+    assert png == (folder / "plain_rgb.png").read_bytes()
+    assert np.array_equal(np.asarray(Image.open(io.BytesIO(png))), load_bundle(folder).plain_rgb)
+    position = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
+    np.testing.assert_allclose(position["min"], ORIGIN, atol=1e-4)                # the quad spans [0, 1]^2 x 0
+    np.testing.assert_allclose(position["max"], ORIGIN + [1.0, 1.0, 0.0], atol=1e-4)
+
+
+# ------------------------------------------------------------------------------------------ bad input
+def _export(capsys, bundle, out, fmt="gltf"):
+    rc = main(["export", str(bundle), "--format", fmt, "--out", str(out)])
+    err = capsys.readouterr().err
+    return rc, err
+
+
+def _one_line(err):
+    assert err.count("\n") == 1 and err.startswith("neuras-distill: error: ") and "Traceback" not in err, err
+    return err
+
+
+def test_bad_inputs_exit_2_with_one_line_and_write_nothing(tmp_path, capsys):
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    out = out_dir / "scene.glb"
+    not_bundle = tmp_path / "photos"
+    not_bundle.mkdir()
+    (not_bundle / "a.txt").write_text("hello")
+    rc, err = _export(capsys, not_bundle, out)
+    assert rc == 2 and "missing manifest.json" in _one_line(err)
+    rc, err = _export(capsys, tmp_path / "nowhere", out)
+    assert rc == 2 and "does not exist" in _one_line(err)
+
+    folder = small_bundle(tmp_path)
+    rc, err = _export(capsys, folder, out, fmt="fbx")
+    assert rc == 2 and "'fbx'" in _one_line(err) and "gltf" in err
+
+    corrupt = small_bundle(tmp_path, name="corrupt")
+    raw = bytearray((corrupt / "codebook.npy").read_bytes())
+    raw[-3] ^= 0x40
+    (corrupt / "codebook.npy").write_bytes(bytes(raw))
+    rc, err = _export(capsys, corrupt, out)
+    assert rc == 2 and "codebook.npy is corrupt" in _one_line(err)
+
+    old = small_bundle(tmp_path, name="old")                # a bundle from before plain_rgb.png
+    man = json.loads((old / "manifest.json").read_text())
+    del man["files"]["plain_rgb.png"]
+    (old / "manifest.json").write_text(json.dumps(man))
+    (old / "plain_rgb.png").unlink()
+    rc, err = _export(capsys, old, out)
+    assert rc == 2 and "re-run" in _one_line(err)
+
+    rc, err = _export(capsys, folder, out_dir / "scene.gltf")
+    assert rc == 2 and ".glb" in _one_line(err)
+    assert list(out_dir.iterdir()) == []                    # nothing written, no temporary left
+
+    out.write_bytes(b"someone else's file")
+    rc, err = _export(capsys, folder, out)
+    assert rc == 2 and "not written by neuras-distill" in _one_line(err)
+    assert out.read_bytes() == b"someone else's file" and list(out_dir.iterdir()) == [out]
+    (out_dir / "dir.glb").mkdir()
+    rc, err = _export(capsys, folder, out_dir / "dir.glb")
+    assert rc == 2 and "folder" in _one_line(err)
+
+
+def test_export_replaces_its_own_file_and_load_bundle_refuses_other_files(tmp_path, capsys):
+    folder = small_bundle(tmp_path)
+    out = tmp_path / "scene.glb"
+    assert main(["export", str(folder), "--format", "gltf", "--out", str(out)]) == 0
+    first = out.read_bytes()
+    assert main(["export", str(folder), "--format", "gltf", "--out", str(out)]) == 0
+    assert out.read_bytes() == first and sorted(p.name for p in tmp_path.iterdir()) == ["b", "scene.glb"]
+    assert "wrote" in capsys.readouterr().out
+    text = tmp_path / "notes.glb"
+    text.write_text("not a glb")
+    with pytest.raises(BadInputError, match="not a glTF binary"):
+        load_bundle(text)
+    doc, body = _glb_json(out)
+    del doc["extensions"]
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    plain = tmp_path / "plain.glb"
+    plain.write_bytes(struct.pack("<III", 0x46546C67, 2, 28 + len(js) + len(body))
+                      + struct.pack("<II", len(js), 0x4E4F534A) + js + struct.pack("<II", len(body), 0x004E4942) + body)
+    with pytest.raises(BadInputError, match="without a neuras bundle"):
+        load_bundle(plain)
