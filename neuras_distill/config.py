@@ -49,12 +49,15 @@ class GeometryConfig:
     enclose_fringe: str = "auto"
     """"auto": move the iso-level outwards until the mesh covers the pixels where the field is partly opaque
     (its soft fringe), when the background is one constant colour; "on", "off"."""
-    core_level: str = "surface"
-    """Where a fringed density field's core mesh sits (with a fringe shell): "surface" (the field's surface
-    level, as the silhouette needs) or "colour" (where its opaque training rays terminate, ``geometry/
-    colour_level.py``). "colour" trained the gradient ball's interior to 45.9 dB on training views against 39.7,
-    but held-out views at 1920 px gained only 0.5 dB and the silhouette band lost 3.6 dB: the core's
-    silhouette moves inwards and the coarser, faceted shell then draws the outer ring of opaque pixels."""
+    core_level: str = "colour"
+    """Where a fringed density field's core mesh sits (with a fringe shell): "colour" (where its opaque training
+    rays terminate, ``geometry/colour_level.py``) or "surface" (the field's surface level, where the silhouette
+    is). On the gradient ball at 1920x1080 (session 8) "colour" scored 37.6 dB in the interior against 35.1 and
+    27.6 dB in the silhouette band against 29.5 (FLIP 0.0272 against 0.0291): a texture at the surface level
+    sees the colour through parallax that changes with the view (an oracle texture, the field's exact colour
+    on a sphere, scores ~30 dB at the surface level's radius and ~41 dB at the colour level's), while the
+    shell, which then draws the whole fade, is the coarser layer. The core's shader drops the view direction
+    when the field's own colour does not depend on it (``pipeline.run._resolve_core_view_dependence``)."""
     cull_back_faces: bool = True
     """Cull back faces when rasterizing (G-buffers and playback alike): invisible on closed meshes, and
     playback shades half as many fragments."""
@@ -73,10 +76,13 @@ class TextureConfig:
     """Upper limit of the automatic atlas side."""
     feature_dim: int = 8
     """Channels per texel (D)."""
-    num_codes: int = 4096
-    """Vector-quantizer codebook size (K); codes never used are dropped at bake time. 4096, not the paper's 1024:
+    num_codes: int = 8192
+    """Vector-quantizer codebook size (K); codes never used are dropped at bake time. 8192, not the paper's 1024:
     a smooth colour gradient needs finer steps than k-means of 1024 codes gives (gradient ball, held-out
-    interior without VQ 36.3 dB, 1024 codes 33.7, 4096 codes 35.4; the index texture stays uint16)."""
+    interior without VQ 36.3 dB, 1024 codes 33.7, 4096 codes 35.4; the index texture stays uint16). With the
+    core at the colour level (session 8; held-out 640x360, core interior): no VQ 41.3 dB, 4096 codes 38.9,
+    8192 39.8, 16384 40.0 (k-means of 16384 codes costs another ~20 s on two cores). Tuning the codebook on the
+    photometric loss with the assignments fixed (the last 15-30% of the run) gained nothing (38.6-39.0)."""
     hidden: int = 16
     """Hidden units of the MLP shader (NeuRas uses 32; 16 halves the per-pixel cost at ~0.1 dB here)."""
     num_layers: int = 2

@@ -93,10 +93,10 @@ def ray_geometry(cams: Cameras, i: int) -> tuple[np.ndarray, np.ndarray]:
     return perp, depth
 
 
-def make_model(seed: int = 0, mesh_layers: int = 1) -> NeuralTextureModel:
+def make_model(seed: int = 0, mesh_layers: int = 1, core_viewdir=None) -> NeuralTextureModel:
     from test_bake import make_model as random_model
 
-    return random_model(h=16, w=16, seed=seed, use_facing=True, mesh_layers=mesh_layers)
+    return random_model(h=16, w=16, seed=seed, use_facing=True, mesh_layers=mesh_layers, core_viewdir=core_viewdir)
 
 
 # ---------------------------------------------------------------------------------------------- no GL needed
@@ -237,18 +237,20 @@ def test_single_layer_is_bit_for_bit_the_pre_layer_output(monkeypatch):
 # ---------------------------------------------------------------------------------------------- playback
 @gl
 @pytest.mark.gl
-@pytest.mark.parametrize("shaders", [1, 2])
-def test_playback_of_a_two_layer_bundle_matches_the_torch_reference(tmp_path, shaders):
+@pytest.mark.parametrize("shaders,core_viewdir", [(1, None), (2, None), (2, False)])
+def test_playback_of_a_two_layer_bundle_matches_the_torch_reference(tmp_path, shaders, core_viewdir):
     """(4) The saved and reloaded bundle plays, pixel for pixel, the torch forward pass on the two-layer
     G-buffer (view direction and facing cosine on: the facing input reads the global face id's normal); with
-    a shader per layer, each layer's program runs its own MLP."""
+    a shader per layer, each layer's program runs its own MLP (also when the core's takes no direction, its
+    facing weight then reads lane 3 of the view vector)."""
     from neuras_distill.pipeline.evaluate import gl_torch_parity
     from neuras_distill.playback.rasterize import rasterize_gbuffer
     from neuras_distill.playback.renderer import BundleRenderer
     from neuras_distill.playback.shaders import VERTEX_SHADER
     from neuras_distill.playback.viewer import render_orbit_frames
 
-    m, mesh = make_model(mesh_layers=shaders), two_spheres()
+    m, mesh = make_model(mesh_layers=shaders, core_viewdir=core_viewdir), two_spheres()
+    assert m.shaders[0].use_viewdir == (core_viewdir is None) and m.shaders[-1].use_viewdir
     bg = np.float32([0.1, 0.2, 0.3])
     bundle = load_bundle(bake(m, mesh, bg, vertex_shader=VERTEX_SHADER).save(tmp_path / "b"))
     assert bundle.manifest["shaders"] == shaders
@@ -347,6 +349,17 @@ def test_a_shader_per_layer_picks_by_the_layer_column():
     expected = torch.where(d[:, 4:5] > 0.5, shell, core)
     torch.testing.assert_close(rgb, expected)
     assert (core - shell).abs().max() > 0.05                                 # the two MLPs differ
+
+    blind = make_model(mesh_layers=2, core_viewdir=False)      # the core ignores the direction, the shell not
+    turned = d.clone()
+    turned[:, :3] = -turned[:, :3]
+    with torch.no_grad():
+        a, b = blind(uv, d)[0], blind(uv, turned)[0]
+    core_rows = d[:, 4] < 0.5
+    torch.testing.assert_close(a[core_rows], b[core_rows])
+    assert (a[~core_rows] - b[~core_rows]).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="two-layer"):
+        NeuralTextureModel(4, 4, mesh_layers=1, core_viewdir=False)
 
     before = [p.detach().clone() for p in m.shaders[1].parameters()]
     h = w = 8

@@ -108,14 +108,22 @@ def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, inde
     return names
 
 
-def _mlp_lines(out: list[str], layers: list[tuple], in_names: list[str], dim: int, c4: int, view_dim: int,
+def _mlp_lines(out: list[str], shader, in_names: list[str], dim: int, c4: int, view_has_dir: bool,
                indent: str) -> str:
-    """Append one MLP shader's layers (``MLPShader.weights()``) reading ``in_names`` (the ``c4`` feature vec4s,
-    then the view vec4) and return the GLSL expression of its rgb."""
+    """Append one ``MLPShader``'s layers reading ``in_names`` (the ``c4`` feature vec4s, then the view vec4
+    ``a0_d``: (dir, facing) when ``view_has_dir``, else (facing, 0, 0, 0)) and return the GLSL expression of its
+    rgb. A shader that takes no direction (a core without parallax, ``NeuralTextureModel(core_viewdir=False)``)
+    gets zero weights on the direction lanes."""
+    layers = shader.weights()
     w0, _ = layers[0]
     cols = np.zeros((w0.shape[0], 4 * len(in_names)), np.float32)     # features padded to 4*c4, then the view
     cols[:, :dim] = w0[:, :dim]
-    cols[:, 4 * c4:4 * c4 + view_dim] = w0[:, dim:dim + view_dim]
+    at = dim
+    if shader.use_viewdir:
+        cols[:, 4 * c4:4 * c4 + 3] = w0[:, at:at + 3]
+        at += 3
+    if shader.use_facing:
+        cols[:, 4 * c4 + (3 if view_has_dir else 0)] = w0[:, at]
     names = in_names
     for n, (w, b) in enumerate(layers):
         names = dense_lines(out, cols if n == 0 else w, b, names, f"a{n + 1}",
@@ -131,9 +139,9 @@ def generate_fragment_shader(model) -> str:
     """
     tex_w, tex_h, dim = int(model.tex_width), int(model.tex_height), int(model.feature_dim)
     c4 = (dim + 3) // 4
-    use_dir = bool(model.shader.use_viewdir)
+    use_dir = any(bool(s.use_viewdir) for s in model.shaders)
     use_facing = bool(model.use_facing)
-    layers = model.shader.weights()      # every shader of the model has the same sizes
+    layers = model.shader.weights()      # every shader has the same hidden sizes (the inputs may differ)
 
     out: list[str] = [
         "#version 400 core",
@@ -167,15 +175,14 @@ def generate_fragment_shader(model) -> str:
         out.append("    vec4 a0_d = vec4(normalize(v_world - u_cam_pos), 0.0);")
         in_names.append("a0_d")
 
-    view_dim = (3 if use_dir else 0) + (1 if use_facing else 0)
     if model.mesh_layers == 1:
-        rgb = _mlp_lines(out, model.shader.weights(), in_names, dim, c4, view_dim, "    ")
+        rgb = _mlp_lines(out, model.shader, in_names, dim, c4, use_dir, "    ")
         out.append(f"    vec3 rgb = {rgb};")
     else:       # a two-layer mesh: one program per layer, MESH_LAYER picks the shader at compile time
         out.append("    vec3 rgb;")
         for directive, shader in ((f"#if MESH_LAYER == {SHELL_VARIANT}", model.shaders[1]), ("#else", model.shaders[0])):
             out.append(directive)
-            rgb = _mlp_lines(out, shader.weights(), in_names, dim, c4, view_dim, "    ")
+            rgb = _mlp_lines(out, shader, in_names, dim, c4, use_dir, "    ")
             out.append(f"    rgb = {rgb};")
         out.append("#endif")
     out += [
