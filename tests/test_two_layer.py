@@ -370,3 +370,39 @@ def test_a_shader_per_layer_picks_by_the_layer_column():
     fit(m, gen.random((1, h, w, 2), dtype=np.float32), np.ones((1, h, w), bool), view,
         gen.random((1, h, w, 3), dtype=np.float32), steps=3, batch_patches=2, patch=4, progress=False)
     assert any((p - q).abs().max() > 0 for p, q in zip(m.shaders[1].parameters(), before))
+
+
+def test_the_core_drops_the_view_direction_only_at_the_colour_level_of_a_view_independent_field():
+    """``run._resolve_core_view_dependence``: a two-layer mesh whose core sits at the colour level of a field
+    whose colour does not change with the view gets a core shader without the direction (and says so in
+    ``left_out``); a view-dependent field, a surface-level core, a one-layer mesh or a forced setting keep it."""
+    import torch
+
+    from neuras_distill.config import DistillConfig, load_config
+    from neuras_distill.pipeline.run import _resolve_core_view_dependence
+
+    class Field:
+        def __init__(self, glossy: bool):
+            self.glossy = glossy
+
+        def radiance(self, x, d):
+            return torch.sigmoid(x + (2.0 * d if self.glossy else 0.0))
+
+    mesh = two_spheres()
+    mesh.stats = {"mc_colour_level_used": True}
+    cfg = DistillConfig()
+    left_out: list = []
+    assert _resolve_core_view_dependence(Field(False), mesh, cfg, True, left_out) is False
+    assert [e["component"] for e in left_out] == ["view direction of the core's shader"]
+    left_out.clear()
+    assert _resolve_core_view_dependence(Field(True), mesh, cfg, True, left_out) is None and not left_out
+    assert _resolve_core_view_dependence(Field(False), mesh, cfg, False, left_out) is None
+    surface = two_spheres()
+    surface.stats = {"mc_colour_level_used": False}
+    assert _resolve_core_view_dependence(Field(False), surface, cfg, True, left_out) is None
+    one = two_spheres(False)
+    one.stats = {"mc_colour_level_used": True}
+    assert _resolve_core_view_dependence(Field(False), one, cfg, True, left_out) is None
+    forced = load_config(overrides={"texture": {"view_dependence": "on"}})
+    assert _resolve_core_view_dependence(Field(False), mesh, forced, True, left_out) is None
+    assert not left_out
