@@ -93,13 +93,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=512)
     p.add_argument("--out", default=None, help="folder for the frames (default: <bundle>/../orbit)")
 
-    p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file)")
+    p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file; "
+                                         "web: a static folder that plays it in a browser)")
     p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
     p.add_argument("--format", required=True, metavar="FORMAT",
                    help=f"output format: {', '.join(EXPORT_FORMATS)} (gltf: glTF 2.0 binary, the mesh with its "
-                        "plain RGB texture, unlit, plus the whole neural bundle inside; load_bundle reads it)")
-    p.add_argument("--out", required=True, help="output file (gltf: a .glb path; an existing file is replaced "
-                                                "only when neuras-distill wrote it)")
+                        "plain RGB texture, unlit, plus the whole neural bundle inside; load_bundle reads it; web: "
+                        "index.html + WebGL2 player + data, the same shaders in GLSL ES 3.00; view it with "
+                        "`python -m http.server` inside the folder, index.html?camera=N plays held-out camera N)")
+    p.add_argument("--out", required=True, help="output file or folder (gltf: a .glb path; web: a folder); an "
+                                                "existing one is replaced only when neuras-distill wrote it")
     return parser
 
 
@@ -272,8 +275,16 @@ def _export_gltf(args) -> int:
     return 0
 
 
+def _export_web(args) -> int:
+    from .bake.web import export_web
+
+    out = export_web(args.bundle, args.out)
+    print(f"wrote {out} (serve it with `python -m http.server` inside it, open index.html)")
+    return 0
+
+
 #: ``export --format`` values and their writers (each raises BadInputError for bad input, writes atomically).
-EXPORT_FORMATS = {"gltf": _export_gltf}
+EXPORT_FORMATS = {"gltf": _export_gltf, "web": _export_web}
 
 
 def _export(args) -> int:

@@ -191,3 +191,42 @@ def generate_fragment_shader(model) -> str:
         "",
     ]
     return "\n".join(out)
+
+
+#: The lines :func:`to_glsl_es` puts after ``#version 300 es``: WebGL2 fragment shaders have no default float
+#: precision and no default for the integer samplers; highp everywhere is what the desktop computes in.
+GLSL_ES_PRECISION = ("precision highp float;", "precision highp int;", "precision highp sampler2D;",
+                     "precision highp usampler2D;")
+
+#: GLSL ES 3.00 has no ``textureGather`` (ES 3.10 has): :func:`to_glsl_es` renames the calls to this function,
+#: defined right after the precision lines, which fetches the same four texels (CLAMP_TO_EDGE, component order
+#: x (i0, j1), y (i1, j1), z (i1, j0), w (i0, j0)) with ``texelFetch``; integer-valued, so bit-exact.
+GLSL_ES_GATHER = """uvec4 neurasGather(usampler2D s, vec2 p) {  // textureGather (GLSL ES 3.00 has none): 4 texelFetch
+    ivec2 size = textureSize(s, 0);
+    ivec2 i0 = ivec2(floor(p * vec2(size) - 0.5));
+    ivec2 lo = clamp(i0, ivec2(0), size - 1);
+    ivec2 hi = clamp(i0 + 1, ivec2(0), size - 1);
+    return uvec4(texelFetch(s, ivec2(lo.x, hi.y), 0).r, texelFetch(s, hi, 0).r,
+                 texelFetch(s, ivec2(hi.x, lo.y), 0).r, texelFetch(s, lo, 0).r);
+}"""
+
+
+def to_glsl_es(source: str) -> str:
+    """The desktop GLSL ``source`` (any shader this package generates or ships: ``#version 330`` / ``400 core``)
+    rewritten as GLSL ES 3.00 for WebGL2 (``bake/web.py``). The rewrite, and all of it:
+
+    1. the ``#version`` line becomes ``#version 300 es`` followed by :data:`GLSL_ES_PRECISION`;
+    2. where the source calls ``textureGather(``, the calls become ``neurasGather(`` and :data:`GLSL_ES_GATHER`
+       follows the precision lines (the only desktop function the generated shaders use that ES 3.00 lacks).
+
+    Everything else is kept byte for byte (tests/test_web.py undoes the rewrite and compares). Deterministic;
+    raises ValueError when the first line is not a ``#version`` directive.
+    """
+    first, sep, rest = source.partition("\n")
+    if not first.startswith("#version"):
+        raise ValueError(f"a GLSL source must start with its #version line, got {first[:40]!r}")
+    head = ["#version 300 es", *GLSL_ES_PRECISION]
+    if "textureGather(" in rest:
+        rest = rest.replace("textureGather(", "neurasGather(")
+        head.append(GLSL_ES_GATHER)
+    return "\n".join(head) + sep + rest

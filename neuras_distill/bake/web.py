@@ -1,0 +1,176 @@
+"""Static web player export of a bundle: ``neuras-distill export BUNDLE --format web --out DIR``.
+
+Owns: :func:`export_web`, :func:`web_files` and the layout of the folder it writes. The folder plays the bundle in
+a browser with plain WebGL2 (``neuras_distill/web/player.js``: no library, no CDN, nothing fetched from outside
+the folder) by the same passes as ``playback/renderer.py``; ``python -m http.server`` inside it is enough to view
+it (``fetch`` does not read ``file://`` URLs).
+
+Layout of DIR (every binary file raw little-endian, no header; the sizes are in scene.json)::
+
+    index.html, player.js       the player (package data, copied unchanged)
+    scene.json                  what the player needs: textures, mesh draw calls, passes, bounds, background
+    cameras.json                the run's {"train": Cameras.to_json(), "test": ...} copied byte for byte from
+                                the bundle's parent folder; without one a default orbit camera (the framing of
+                                ``viewer.orbit_cameras_for``, 640 x 480, world frame) as "test" camera 0 and
+                                "default_orbit": true. ``index.html?camera=N`` plays held-out (test) camera N.
+    mesh.bin                    float32 (V, 8) interleaved: position (bundle frame, relative to the origin),
+                                uv, ``MeshData.vertex_normals`` (the VBO layout of ``rasterize.mesh_vertex_array``)
+    faces.bin                   uint32 (F, 3) triangle indices; ``scene.json`` "layers" = ``mesh_layers``
+    tex_<uniform>.bin           one per bundle texture: uint16 (H, W[, C]) -> R16UI..RGBA16UI, float32 ->
+                                R32F..RGBA32F, row 0 = v = 0, NEAREST (as ``BundleRenderer`` binds them)
+    shaders/*.vert|frag         GLSL ES 3.00 from ``glsl.to_glsl_es`` of the very sources the desktop compiles:
+                                the bundle's shader.frag (one file per mesh layer, ``shaders.shader_variant``),
+                                ``shaders.VERTEX_SHADER``, the bundle's sky.frag with ``SKY_VERTEX_SHADER``, the
+                                silhouette pass
+    .neuras-distill-web         marker: this folder is ours, so a later export may replace it
+
+Decisions: the 16-bit index PNG is written out as raw uint16 because a browser decodes PNGs to 8 bits per channel;
+the float32 data (codebooks, vertices) is raw so the GPU gets the same bits as the desktop player. The folder is
+built beside DIR under a temporary name and renamed into place: on any error nothing is left, and an existing DIR
+is replaced only when it carries the marker.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..errors import BadInputError
+
+MARKER = ".neuras-distill-web"
+PLAYER_FILES = ("index.html", "player.js")
+DEFAULT_CAMERA_SIZE = (640, 480)
+
+
+def _cameras_json(bundle, src: Path) -> bytes:
+    """cameras.json bytes: the run's (beside the bundle), validated, or a default orbit camera."""
+    from ..render.cameras import Cameras
+
+    path = src.parent / "cameras.json"
+    if path.is_file():
+        try:
+            data = json.loads(path.read_text("utf-8"))
+            Cameras.from_json(data["test"])
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
+            raise BadInputError(f"{path} is not a cameras.json of a run ({exc.__class__.__name__}: {exc}); "
+                                "fix or remove it") from None
+        return path.read_bytes()
+    from ..playback.viewer import orbit_cameras_for
+
+    cams = orbit_cameras_for(bundle.mesh, 1, *DEFAULT_CAMERA_SIZE)
+    c2w = cams.c2w.double().numpy()
+    c2w[:, :3, 3] += np.asarray(bundle.origin, np.float64).reshape(3)     # bundle frame -> world
+    world = Cameras(c2w.astype(np.float32), cams.fx, cams.fy, cams.cx, cams.cy, cams.width, cams.height)
+    return json.dumps({"test": world.to_json(), "default_orbit": True}).encode("utf-8")
+
+
+def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
+    """{relative path: bytes} of the web folder for a loaded ``bundle`` (see the module docstring), the marker
+    included."""
+    from ..playback.projection import mesh_bounds
+    from ..playback.rasterize import mesh_layers
+    from ..playback.shaders import VERTEX_SHADER, shader_variant
+    from ..playback.silhouette import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER
+    from .glsl import to_glsl_es
+    from .glsl_sky import SKY_VERTEX_SHADER
+
+    mesh = bundle.mesh
+    manifest = dict(getattr(bundle, "manifest", None) or {})
+    files: dict[str, bytes] = {}
+    uvs = mesh.uvs if mesh.uvs is not None else np.zeros((mesh.num_vertices, 2), np.float32)
+    vbo = np.concatenate([mesh.vertices, uvs, mesh.vertex_normals()], axis=1)
+    files["mesh.bin"] = np.ascontiguousarray(vbo, dtype="<f4").tobytes()
+    files["faces.bin"] = np.ascontiguousarray(mesh.faces, dtype="<u4").tobytes()
+    textures = []
+    for name, arr in sorted(bundle.textures.items()):
+        arr = np.ascontiguousarray(arr)
+        if arr.dtype not in (np.uint16, np.float32) or arr.ndim not in (2, 3) or \
+                (arr.ndim == 3 and not 1 <= arr.shape[2] <= 4):
+            raise BadInputError(f"bundle texture {name!r} is {arr.dtype} {arr.shape}; expected uint16 or float32 "
+                                "(H, W[, C]) with C in 1..4")
+        file = f"tex_{name}.bin"
+        files[file] = arr.astype(arr.dtype.newbyteorder("<"), copy=False).tobytes()
+        textures.append({"name": name, "file": file, "width": int(arr.shape[1]), "height": int(arr.shape[0]),
+                         "components": 1 if arr.ndim == 2 else int(arr.shape[2]),
+                         "type": "uint16" if arr.dtype == np.uint16 else "float32"})
+    layers = [[float(layer), int(first), int(count)] for layer, first, count in mesh_layers(mesh)]
+    programs = {}
+    for layer in sorted({max(0, int(layer)) for layer, _, _ in layers} or {0}):
+        programs[str(layer)] = f"shaders/mesh{layer}.frag"
+        files[programs[str(layer)]] = shader_variant(to_glsl_es(bundle.fragment_shader), layer).encode("utf-8")
+    files["shaders/mesh.vert"] = to_glsl_es(VERTEX_SHADER).encode("utf-8")
+    sky = None
+    if getattr(bundle, "sky_fragment_shader", None):
+        files["shaders/sky.vert"] = to_glsl_es(SKY_VERTEX_SHADER).encode("utf-8")
+        files["shaders/sky.frag"] = to_glsl_es(bundle.sky_fragment_shader).encode("utf-8")
+        sky = {"vertex": "shaders/sky.vert", "fragment": "shaders/sky.frag",
+               "center": [float(x) for x in np.asarray(manifest["skybox"]["center"], np.float64).reshape(3)]}
+    silhouette = None
+    if manifest.get("silhouette_blend", False):
+        files["shaders/silhouette.vert"] = to_glsl_es(SILHOUETTE_VERTEX_SHADER).encode("utf-8")
+        files["shaders/silhouette.frag"] = to_glsl_es(SILHOUETTE_FRAGMENT_SHADER).encode("utf-8")
+        silhouette = {"vertex": "shaders/silhouette.vert", "fragment": "shaders/silhouette.frag"}
+    scene = {
+        "generator": f"neuras-distill {__version__}",
+        "background": [float(c) for c in np.asarray(bundle.background_color, np.float64).reshape(3)],
+        "origin": [float(x) for x in np.asarray(getattr(bundle, "origin", np.zeros(3)), np.float64).reshape(3)],
+        "bounds": mesh_bounds(mesh.vertices).tolist(),
+        "cull_back_faces": bool(manifest.get("cull_back_faces", False)),
+        "mesh": {"vertices": int(mesh.num_vertices), "faces": int(mesh.num_faces), "vbo": "mesh.bin",
+                 "ibo": "faces.bin", "layers": layers},
+        "vertex_shader": "shaders/mesh.vert", "programs": programs, "textures": textures,
+        "sky": sky, "silhouette": silhouette,
+    }
+    files["scene.json"] = json.dumps(scene, indent=1).encode("utf-8")
+    files["cameras.json"] = cameras_json
+    web = resources.files("neuras_distill") / "web"
+    for name in PLAYER_FILES:
+        files[name] = (web / name).read_bytes()
+    files[MARKER] = json.dumps({"generator": "neuras-distill", "version": __version__}).encode("utf-8")
+    return files
+
+
+def export_web(bundle_path, out) -> Path:
+    """Write the bundle at ``bundle_path`` (a folder, or a GLB of ours) as the static web folder ``out``.
+
+    Validates everything first (the bundle with its checksums, cameras.json beside it, the output: absent or a
+    folder with our marker), builds the folder under a temporary sibling name and renames it into place: on any
+    error nothing is left behind. Returns ``out``.
+    """
+    from .bundle import load_bundle
+
+    src, out = Path(bundle_path), Path(out)
+    if out.exists() or out.is_symlink():
+        if not out.is_dir() or out.is_symlink() or not (out / MARKER).is_file():
+            raise BadInputError(f"output {out} exists and is not a web folder written by neuras-distill; "
+                                "choose another --out or remove it")
+    if not src.exists():
+        raise BadInputError(f"bundle {src} does not exist")
+    bundle = load_bundle(src)
+    files = web_files(bundle, _cameras_json(bundle, src.resolve()))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stamp = f"{os.getpid()}-{int(time.time() * 1000)}"
+    tmp, old = out.parent / f".{out.name}.tmp-{stamp}", out.parent / f".{out.name}.old-{stamp}"
+    try:
+        for name, data in files.items():
+            path = tmp / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+        if out.exists():
+            os.replace(out, old)
+        os.replace(tmp, out)
+    finally:
+        for leftover in (tmp, old):
+            if leftover.exists():
+                shutil.rmtree(leftover)
+    return out
+
+
+__all__ = ["MARKER", "export_web", "web_files"]
