@@ -153,10 +153,12 @@ def test_field_without_surface_leaves_nothing(tmp_path):
 
 def test_soft_fringe_gets_a_shell_and_the_facing_input():
     """The gradient ball's fringe is many pixels wide: the mesh moves out until it covers the field's partly
-    opaque pixels, the shader gets |n . d| (and the view direction, though the ball is matte), the bundle
-    plays what torch computes, and the band around the silhouette is better than with the mesh at the
-    surface level (same tiny settings; both play with the soft-silhouette pass, which recovers part of the
-    fringe on its own: 21.9 against 23.3 dB here)."""
+    opaque pixels, the shader gets |n . d| (and the shell's shader the view direction; the core's drops it, the
+    ball being matte), the bundle plays what torch computes, and against the single mesh at the surface level
+    (same tiny settings; both play with the soft-silhouette pass, which recovers part of the fringe on its
+    own) the interior gains most, the core sitting where the colour comes from (session 8: interior 28.6 ->
+    34.3 dB, band 21.8 -> 22.6 dB, overall 32.7 -> 34.8 dB; session 7, core at the surface level: band 21.9
+    -> 23.3 dB)."""
     torch.set_num_threads(2)
     field = nd.make_scene("gradient-ball")
     cams = field.default_cameras(24, 256, 144, held_out_every=6)     # the fast preset holds out every 6th
@@ -170,10 +172,12 @@ def test_soft_fringe_gets_a_shell_and_the_facing_input():
     stats = on["mesh_stats"]
     assert stats["mc_fringe_missed_at_surface"] > 0.02 >= stats["mc_fringe_missed"]
     assert stats["mc_fringe_divisor"] > 1
-    # two layers: the core stays at the surface, the shell only draws outside the core's silhouette, so the
+    # two layers: the core at the colour level, the shell only draws outside the core's silhouette, so the
     # interior is not learnt through the fringe (session 5's single shell lost interior PSNR to patches)
     assert runs["on"].bundle.mesh.core_faces is not None and stats["shell_faces"] > 0
-    assert on["psnr_interior"] >= off["psnr_interior"] - 0.5, (on["psnr_interior"], off["psnr_interior"])
+    assert stats["mc_colour_level_used"] and stats["mc_colour_level"] > 2.0 * field.surface_level
+    assert on["psnr_interior"] > off["psnr_interior"] + 3.0, (on["psnr_interior"], off["psnr_interior"])
+    assert on["view_dependence"]["core"] is False
     assert runs["on"].bundle.manifest["use_facing"] and runs["on"].bundle.manifest["use_viewdir"]
     assert "facing" in runs["on"].bundle.fragment_shader and "v_normal" in runs["on"].bundle.fragment_shader
     assert not runs["off"].bundle.manifest["use_facing"]
@@ -181,4 +185,5 @@ def test_soft_fringe_gets_a_shell_and_the_facing_input():
     print(f"silhouette band {off['psnr_silhouette']:.2f} -> {on['psnr_silhouette']:.2f} dB, "
           f"interior {off['psnr_interior']:.2f} -> {on['psnr_interior']:.2f} dB, "
           f"overall {off['psnr']:.2f} -> {on['psnr']:.2f} dB")
-    assert on["psnr_silhouette"] > off["psnr_silhouette"] + 1.0, (on["psnr_silhouette"], off["psnr_silhouette"])
+    assert on["psnr_silhouette"] > off["psnr_silhouette"] + 0.3, (on["psnr_silhouette"], off["psnr_silhouette"])
+    assert on["psnr"] > off["psnr"] + 1.0, (on["psnr"], off["psnr"])
