@@ -85,13 +85,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rays", type=int, default=512, help="probe rays (default 512)")
     p.add_argument("--json", default=None, metavar="PATH", help="also write the report as JSON")
 
-    p = sub.add_parser("view", help="play a bundle: render an orbit to PNG frames (headless)")
-    p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
-    p.add_argument("--orbit", action="store_true", help="render an orbit around the bundle to PNG frames")
-    p.add_argument("--frames", type=int, default=36, help="frames in the orbit")
-    p.add_argument("--width", type=int, default=512)
-    p.add_argument("--height", type=int, default=512)
-    p.add_argument("--out", default=None, help="folder for the frames (default: <bundle>/../orbit)")
+    p = sub.add_parser("view", help="play a bundle in a window (orbit, pan, zoom, fly; keys switch what is shown), "
+                                     "or render an orbit to PNG frames headless (--orbit)")
+    p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle) or .glb; the window starts at the first "
+                                  "held-out camera of the run's cameras.json beside it")
+    p.add_argument("--orbit", action="store_true", help="render an orbit around the bundle to PNG frames "
+                                                        "(headless, no window)")
+    p.add_argument("--frames", type=int, default=36, help="--orbit: frames in the orbit")
+    p.add_argument("--width", type=int, default=512, help="--orbit: frame width")
+    p.add_argument("--height", type=int, default=512, help="--orbit: frame height")
+    p.add_argument("--out", default=None, help="--orbit: folder for the frames (default: <bundle>/../orbit)")
+    p.add_argument("--screenshot", default=None, metavar="PATH",
+                   help="window: draw a few frames at the start camera, save the window as PNG and exit")
+    p.add_argument("--camera", type=int, default=0, help="window: held-out camera to start at (default 0)")
+    p.add_argument("--mode", default="neural", metavar="MODE",
+                   help="window: what to show first: neural, plain, uv or index (keys 1-4 switch)")
+    p.add_argument("--no-skybox", action="store_true", help="window: start with the skybox pass off (key K)")
 
     p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file; "
                                          "web: a static folder that plays it in a browser)")
@@ -257,13 +266,24 @@ def _view(args) -> int:
 
     from .errors import require
     from .bake.bundle import load_bundle
-    from .playback.viewer import render_orbit_frames
 
     bundle = load_bundle(args.bundle)
-    require(args.frames >= 1, "--frames must be at least 1")
-    out = Path(args.out) if args.out else Path(args.bundle).resolve().parent / "orbit"
-    paths = render_orbit_frames(bundle, out, frames=args.frames, width=args.width, height=args.height)
-    print(f"wrote {len(paths)} frames to {out}")
+    if args.orbit:
+        from .playback.viewer import render_orbit_frames
+
+        require(args.frames >= 1, "--frames must be at least 1")
+        out = Path(args.out) if args.out else Path(args.bundle).resolve().parent / "orbit"
+        paths = render_orbit_frames(bundle, out, frames=args.frames, width=args.width, height=args.height)
+        print(f"wrote {len(paths)} frames to {out}")
+        return 0
+    from .playback.viewer import start_cameras
+    from .playback.window import play_in_window
+
+    cameras, source = start_cameras(bundle, args.bundle)
+    shot = play_in_window(bundle, cameras, args.camera, mode=args.mode, skybox=not args.no_skybox,
+                          screenshot=args.screenshot, title=f"neuras-distill {Path(args.bundle).resolve().parent.name}")
+    if shot is not None:
+        print(f"wrote {shot} ({source} {args.camera}, mode {args.mode})")
     return 0
 
 

@@ -189,7 +189,10 @@ class BundleRenderer:
         finally:
             fbo.depth_mask = True
 
-    def _draw(self, cameras, i: int, skybox: bool = True):
+    def draw(self, cameras, i: int, skybox: bool = True):
+        """Draw world camera ``i`` at the cameras' size and return the moderngl framebuffer that holds the
+        frame (RGBA8, row 0 = bottom, valid until the next draw): :meth:`render` reads it back, the window
+        player (``window.py``) blits it to the screen."""
         fbo, final, scene_color, _ = self._fbo(int(cameras.width), int(cameras.height))
         fbo.use()
         fbo.clear(*self.background, 0.0, depth=1.0)     # alpha 0: no mesh (the mesh shaders write 1)
@@ -234,7 +237,7 @@ class BundleRenderer:
         """(H, W, 3) float32 image in [0, 1] of world camera ``i`` (row 0 = top), quantised to 8 bits like a
         display. ``skybox=False`` leaves the skybox pass out (uncovered pixels get the clear colour)."""
         h, w = int(cameras.height), int(cameras.width)
-        fbo = self._draw(cameras, i, skybox)
+        fbo = self.draw(cameras, i, skybox)
         data = np.frombuffer(fbo.read(components=3, alignment=1, dtype="f1"), np.uint8).reshape(h, w, 3)[::-1]
         return data.astype(np.float32) / 255.0
 
@@ -249,12 +252,12 @@ class BundleRenderer:
             raise ValueError("time_frames needs at least one camera index")
         frames = max(1, int(frames))
         for k in range(max(0, int(warmup))):
-            self._draw(cameras, idx[k % len(idx)])
+            self.draw(cameras, idx[k % len(idx)])
         self.ctx.finish()
         times = np.empty(frames, np.float64)
         for k in range(frames):
             t0 = time.perf_counter()
-            self._draw(cameras, idx[k % len(idx)])
+            self.draw(cameras, idx[k % len(idx)])
             self.ctx.finish()
             times[k] = (time.perf_counter() - t0) * 1000.0
         median = float(np.median(times))

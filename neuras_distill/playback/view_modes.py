@@ -1,0 +1,85 @@
+"""What the window player can show of a bundle besides its neural shader (keys 1-4 in ``playback/window.py``).
+
+Owns: :data:`VIEW_MODES`, :func:`mode_bundle` and the two diagnostic fragment shaders. Each mode is a
+``Bundle`` with the same mesh, draw calls, origin, background and skybox pass and another fragment shader, so
+``BundleRenderer`` plays all of them the same way:
+
+* ``neural``: the bundle itself (what every other player plays).
+* ``plain``: the plain baked RGB texture (``bake/plain_texture.py``; bundles from session 8 on store it as
+  plain_rgb.png), bilinear, with the skybox pass kept (the sky is not on the mesh).
+* ``uv``: the UV atlas: red/green = (u, v), overlaid with a 64 x 64 checker, so chart borders show as jumps of
+  colour or of the checker's phase, and texel density as the checker's size on screen.
+* ``index``: the codebook index each texel holds (``u_index``, nearest texel), as a hashed colour: texels
+  sharing a code share a colour, so the patches the vector quantiser makes are what you see.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import BadInputError
+
+#: Mode name -> one-line description (window title, ``view --mode`` help), in key order (1, 2, 3, 4).
+VIEW_MODES = {
+    "neural": "the neural shader (the bundle as every player plays it)",
+    "plain": "the plain baked RGB texture (what the neural shader is measured against)",
+    "uv": "UV charts: (u, v) as red/green under a 64 x 64 checker",
+    "index": "the codebook index per texel, as a hashed colour",
+}
+
+UV_FRAGMENT_SHADER = """#version 330 core
+// view mode "uv": (u, v) as red/green under a 64 x 64 checker (chart borders show as jumps)
+in vec2 v_uv;
+out vec4 f_color;
+void main() {
+    vec2 cell = floor(v_uv * 64.0);
+    float checker = mod(cell.x + cell.y, 2.0);
+    f_color = vec4(vec3(v_uv, 0.35) * (0.7 + 0.3 * checker), 1.0);
+}
+"""
+
+INDEX_FRAGMENT_SHADER = """#version 330 core
+// view mode "index": the codebook index of the nearest texel, hashed to a colour
+in vec2 v_uv;
+uniform usampler2D u_index;
+out vec4 f_color;
+void main() {
+    ivec2 size = textureSize(u_index, 0);
+    ivec2 texel = clamp(ivec2(floor(v_uv * vec2(size))), ivec2(0), size - 1);
+    uint k = texelFetch(u_index, texel, 0).r;
+    uint h = k * 2654435761u;
+    h ^= h >> 15;
+    h *= 2246822519u;
+    h ^= h >> 13;
+    f_color = vec4(vec3(uvec3(h, h >> 8, h >> 16) & 255u) / 255.0, 1.0);
+}
+"""
+
+
+def mode_bundle(bundle, mode: str):
+    """The ``Bundle`` that plays ``mode`` (a :data:`VIEW_MODES` key) of ``bundle``; BadInputError for an
+    unknown mode or ``plain`` on a bundle without a plain texture."""
+    if mode not in VIEW_MODES:
+        raise BadInputError(f"unknown view mode {mode!r}; known modes: {', '.join(VIEW_MODES)}")
+    if mode == "neural":
+        return bundle
+    if mode == "plain":
+        from ..bake.plain_texture import plain_bundle  # noqa: PLC0415 (torch; lazy)
+
+        if bundle.plain_rgb is None:
+            raise BadInputError("this bundle has no plain texture (plain_rgb.png): re-run the pipeline to bake "
+                                "one (runs before session 8 did not)")
+        plain = plain_bundle(bundle, bundle.plain_rgb.astype(np.float32) / 255.0)
+        if not bundle.has_skybox:
+            return plain
+        sky_textures = {k: v for k, v in bundle.textures.items() if k.startswith("u_sky_")}
+        manifest = dict(plain.manifest, skybox=bundle.manifest["skybox"])
+        return replace(plain, textures={**plain.textures, **sky_textures}, manifest=manifest,
+                       sky_fragment_shader=bundle.sky_fragment_shader)
+    shader = UV_FRAGMENT_SHADER if mode == "uv" else INDEX_FRAGMENT_SHADER
+    return replace(bundle, fragment_shader=shader)
+
+
+__all__ = ["VIEW_MODES", "mode_bundle", "UV_FRAGMENT_SHADER", "INDEX_FRAGMENT_SHADER"]
