@@ -28,9 +28,13 @@ def test_edges_are_the_pixels_on_both_sides_of_the_coverage_boundary():
 
 @gl
 @pytest.mark.gl
-def test_the_gl_pass_is_its_numpy_mirror_and_changes_only_edges():
+@pytest.mark.parametrize("max_tiled_edges", [6000, 0])     # on the tiles along the edges / over the mesh's box
+def test_the_gl_pass_is_its_numpy_mirror_and_changes_only_edges(monkeypatch, max_tiled_edges):
     from test_bake import make_model
 
+    import neuras_distill.playback.silhouette_strips as strips
+
+    monkeypatch.setattr(strips, "MAX_TILED_EDGES", max_tiled_edges)
     from neuras_distill.playback.rasterize import rasterize_gbuffer
     from neuras_distill.playback.renderer import BundleRenderer
 

@@ -27,10 +27,11 @@ import numpy as np
 
 from ..errors import BadInputError
 from .context import get_context
-from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for, screen_box, shift_cameras
+from .projection import gl_matrix, mesh_bounds, near_far_for, projection_matrix, screen_box, view_matrix
 from .rasterize import _check_mesh, draw_mesh, mesh_layers, mesh_vertex_array, set_raster_state
 from .shaders import VERTEX_SHADER, shader_variant
-from .silhouette import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER
+from .silhouette import SILHOUETTE_FRAGMENT_SHADER
+from .silhouette_strips import COPY_FRAGMENT_SHADER, STRIP_VERTEX_SHADER, SilhouetteEdges
 
 
 def _texture_layout(name: str, arr: np.ndarray) -> tuple[int, str]:
@@ -99,12 +100,18 @@ class BundleRenderer:
             self.sky_vao = self.ctx.vertex_array(self.sky_program, [])
             self._resources += [self.sky_program, self.sky_vao]
             self.sky_center = np.asarray(bundle.manifest["skybox"]["center"], np.float64).reshape(3)
-        self.blend_program = self.blend_vao = None
-        if self.silhouette_blend:
-            self.blend_program = self.ctx.program(vertex_shader=SILHOUETTE_VERTEX_SHADER,
+        self.blend_program = self.copy_program = self.strip_vbo = None
+        if self.silhouette_blend:          # the pass on strips along the silhouette (silhouette_strips.py)
+            self.edges = SilhouetteEdges(mesh.vertices, mesh.faces)
+            self.blend_program = self.ctx.program(vertex_shader=STRIP_VERTEX_SHADER,
                                                   fragment_shader=SILHOUETTE_FRAGMENT_SHADER)
-            self.blend_vao = self.ctx.vertex_array(self.blend_program, [])
-            self._resources += [self.blend_program, self.blend_vao]
+            self.copy_program = self.ctx.program(vertex_shader=STRIP_VERTEX_SHADER,
+                                                 fragment_shader=COPY_FRAGMENT_SHADER)
+            self.strip_vbo = self.ctx.buffer(reserve=4096, dynamic=True)
+            self.blend_vao = self.ctx.vertex_array(self.blend_program, [(self.strip_vbo, "2f", "in_ndc")])
+            self.copy_vao = self.ctx.vertex_array(self.copy_program, [(self.strip_vbo, "2f", "in_ndc")])
+            self._resources += [self.blend_vao, self.copy_vao, self.strip_vbo, self.blend_program,
+                                self.copy_program]
         self.vaos: dict = {}
         for layer, program in self.programs.items():
             if mesh.num_faces:
@@ -129,37 +136,53 @@ class BundleRenderer:
 
     # ------------------------------------------------------------------ internals
     def _fbo(self, width: int, height: int):
-        """(scene framebuffer, final framebuffer) at this size: the same one without the silhouette pass; with
-        it, the scene renders into an RGBA8 texture the pass reads."""
+        """(scene framebuffer, colour attachment, (blend framebuffer, its texture) or None, objects) at this size.
+        Without the silhouette pass the colour is a renderbuffer; with it, the scene renders into an RGBA8
+        texture and the pass blends tiles of it into a second one, then copies them back (silhouette_strips.py)."""
         key = (width, height)
         if key not in self._fbo_cache:
             objects = []
+            blended = None
             if self.silhouette_blend:
-                color = self.ctx.texture((width, height), 4, dtype="f1")
-                color.filter = (self._mgl.LINEAR, self._mgl.LINEAR)      # 2 x 2 block means (silhouette.py)
-                color.repeat_x = color.repeat_y = False
+                color = self._linear_texture(width, height)
+                blended_color = self._linear_texture(width, height)
+                blended = (self.ctx.framebuffer([blended_color]), blended_color)
+                objects += list(blended)
             else:
                 color = self.ctx.renderbuffer((width, height), 4, dtype="f1")
             depth = self.ctx.depth_renderbuffer((width, height))
             scene = self.ctx.framebuffer([color], depth)
             objects += [scene, color, depth]
-            final = scene
-            if self.silhouette_blend:
-                out = self.ctx.renderbuffer((width, height), 4, dtype="f1")
-                final = self.ctx.framebuffer([out])
-                objects += [final, out]
-            self._fbo_cache[key] = (scene, final, color, objects)
+            self._fbo_cache[key] = (scene, color, blended, objects)
         return self._fbo_cache[key]
 
-    def _set_camera(self, cameras, i: int) -> None:
-        """``cameras`` are already in the bundle's frame (see :meth:`_draw`)."""
-        near, far = camera_near_far(self._bounds, cameras, i)
-        mvp = gl_matrix(mvp_for(cameras, i, near, far))
+    def _linear_texture(self, width: int, height: int):
+        """An RGBA8 texture read with LINEAR filtering (2 x 2 block means, silhouette.py), clamped at the edges."""
+        tex = self.ctx.texture((width, height), 4, dtype="f1")
+        tex.filter = (self._mgl.LINEAR, self._mgl.LINEAR)
+        tex.repeat_x = tex.repeat_y = False
+        return tex
+
+    def _local_view(self, cameras, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """(c2w, mvp): world camera ``i``'s (4, 4) float64 pose in the bundle's frame (``origin`` subtracted in
+        float64, then rounded to float32 like every camera) and its model-view-projection with the tight
+        near / far of the mesh's box (``projection.near_far_for``)."""
+        c2w = cameras.c2w[i].double().numpy().copy()
+        c2w[:3, 3] -= self.origin
+        c2w = c2w.astype(np.float32).astype(np.float64)
+        near, far = near_far_for(self._bounds, c2w[:3, 3], c2w)
+        proj = projection_matrix(float(cameras.fx[i]), float(cameras.fy[i]), float(cameras.cx[i]),
+                                 float(cameras.cy[i]), cameras.width, cameras.height, near, far)
+        return c2w, proj @ view_matrix(c2w)
+
+    def _set_camera(self, c2w: np.ndarray, mvp: np.ndarray) -> None:
+        """Uniforms of the mesh programs for a camera in the bundle's frame (:meth:`_local_view`)."""
+        mvp = gl_matrix(mvp)
         for program in self.programs.values():
             if "u_mvp" in program:
                 program["u_mvp"].write(mvp)
             if "u_cam_pos" in program:
-                program["u_cam_pos"].value = tuple(float(x) for x in cameras.c2w[i, :3, 3])
+                program["u_cam_pos"].value = tuple(float(x) for x in c2w[:3, 3])
 
     @property
     def cull_back_faces(self) -> bool:
@@ -193,44 +216,47 @@ class BundleRenderer:
         """Draw world camera ``i`` at the cameras' size and return the moderngl framebuffer that holds the
         frame (RGBA8, row 0 = bottom, valid until the next draw): :meth:`render` reads it back, the window
         player (``window.py``) blits it to the screen."""
-        fbo, final, scene_color, _ = self._fbo(int(cameras.width), int(cameras.height))
+        fbo, scene_color, blended, _ = self._fbo(int(cameras.width), int(cameras.height))
         fbo.use()
         fbo.clear(*self.background, 0.0, depth=1.0)     # alpha 0: no mesh (the mesh shaders write 1)
         for unit, tex in self._textures:
             tex.use(location=unit)
         set_raster_state(self.ctx, self.cull_back_faces)
+        c2w, mvp = self._local_view(cameras, i)
         if self.vao is not None:
-            self._set_camera(shift_cameras(cameras, self.origin), i)
+            self._set_camera(c2w, mvp)
             for call in self._layers:               # core first: its pixels then fail the shell's depth test
                 layer = max(0, int(call[0]))
                 draw_mesh(self.vaos[layer], self.programs[layer], [call])
         if skybox and self.sky_program is not None:
             self._draw_sky(cameras, i)         # after the mesh: only the pixels it left empty are shaded
-        if final is not fbo:                   # the soft-silhouette pass (silhouette.py)
-            self._blend_silhouettes(cameras, i, fbo, final, scene_color)
-        return final
+        if blended is not None:                 # the soft-silhouette pass (silhouette.py)
+            self._blend_silhouettes(c2w, mvp, (int(cameras.width), int(cameras.height)), fbo, scene_color, *blended)
+        return fbo
 
-    def _blend_silhouettes(self, cameras, i: int, scene, final, scene_color) -> None:
-        """Copy the scene into ``final``, then run the silhouette pass over the screen rectangle of the mesh's
-        box only (edges lie inside it; outside, the copy stands): a full-screen pass cost the demo a quarter of
-        its frame time on llvmpipe."""
+    def _blend_silhouettes(self, c2w, mvp, size, scene, scene_color, blended, blended_color) -> None:
+        """The silhouette pass on the screen tiles along the mesh's silhouette and boundary edges
+        (silhouette_strips.py): blend those tiles of the scene into ``blended``, then copy them back. Over the
+        mesh's whole screen box (and a full-frame copy) it cost the demo 30 of its 75 ms at 1080p on llvmpipe;
+        every pixel it changes lies in the tiles, so the picture is the same."""
         ctx = self.ctx
-        ctx.copy_framebuffer(final, scene)
-        final.use()
-        w, h = int(cameras.width), int(cameras.height)
-        local = shift_cameras(cameras, self.origin)
-        near, far = camera_near_far(self._bounds, local, i)
-        box = screen_box(self._bounds, mvp_for(local, i, near, far), w, h)
-        if box[2] == 0 or box[3] == 0:
+        w, h = size
+        quads = self.edges.pass_quads(c2w[:3, 3], mvp, w, h, screen_box(self._bounds, mvp, w, h))
+        if len(quads) == 0:
             return
+        data = quads.tobytes()
+        if self.strip_vbo.size < len(data):
+            self.strip_vbo.orphan(2 * len(data))
+        self.strip_vbo.write(data)
         ctx.disable(self._mgl.DEPTH_TEST | self._mgl.CULL_FACE)
-        ctx.scissor = box
-        try:
-            scene_color.use(location=0)
-            self.blend_program["u_scene"].value = 0
-            self.blend_vao.render(self._mgl.TRIANGLES, vertices=3)
-        finally:
-            ctx.scissor = None
+        blended.use()
+        scene_color.use(location=0)
+        self.blend_program["u_scene"].value = 0
+        self.blend_vao.render(self._mgl.TRIANGLES, vertices=len(quads))
+        scene.use()
+        blended_color.use(location=0)
+        self.copy_program["u_blended"].value = 0
+        self.copy_vao.render(self._mgl.TRIANGLES, vertices=len(quads))
 
     # ------------------------------------------------------------------ public
     def render(self, cameras, i: int, skybox: bool = True) -> np.ndarray:

@@ -7,7 +7,9 @@ shades every sample (2.6x the frame time). This pass gets more for a fraction of
 skybox) pass, every pixel whose two diagonal 2 x 2 blocks (with its left and lower, and with its right and
 upper neighbours) hold both mesh and no mesh becomes the tent filter [1 2 1] x [1 2 1] / 16 of its
 neighbourhood; all other pixels pass through. The GLSL reads LINEAR-filtered 2 x 2 block means (two fetches
-for the test, two more on edges), and runs only over the screen rectangle of the mesh's box. Measured on
+for the test, two more on edges). ``BundleRenderer`` runs it only on the screen tiles along the mesh's silhouette
+and boundary edges (``silhouette_strips.py``; the mesh's screen box for a wrinkled surface with thousands of
+them); the web player runs it over the box. Both give the same picture. Measured on
 session-7 bundles against the field (same held-out views, 8-bit): NeuS fixture 32.96 -> 37.01 dB, demo
 34.77 -> 36.44 dB (a 3 x 3 box instead: 36.70 / 36.46); the gradient ball, whose fringe shell already fades to
 the background, is unchanged.
