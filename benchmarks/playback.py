@@ -1,4 +1,5 @@
-"""Playback benchmark: re-play run folders' bundles alone, with and without the soft-silhouette pass.
+"""Playback benchmark: re-play run folders' bundles alone, with and without the soft-silhouette pass, and the
+plain baked RGB texture (what the neural shader costs; bundles that store plain_rgb.png).
 
 For each run: the median frame time of each variant (interleaved, ``--repeats`` rounds of 30 frames on the
 held-out cameras, so a busy machine slows both alike), and the PSNR / FLIP of each against the field views the
@@ -19,6 +20,7 @@ import numpy as np
 from PIL import Image
 
 import neuras_distill as nd
+from neuras_distill.bake.plain_texture import plain_bundle
 from neuras_distill.flip_metric import flip
 from neuras_distill.metrics import psnr
 from neuras_distill.playback.renderer import BundleRenderer
@@ -43,6 +45,8 @@ def main() -> None:
         out = {"run": str(run)}
         players = {"hard": BundleRenderer(bundle, silhouette_blend=False),
                    "soft": BundleRenderer(bundle, silhouette_blend=True)}
+        if bundle.plain_rgb is not None:       # the report's baseline: same mesh, passes and cameras, no sky
+            players["plain"] = BundleRenderer(plain_bundle(bundle, bundle.plain_rgb.astype(np.float32) / 255.0))
         try:
             for name, player in players.items():
                 images = [player.render(cams, i) for i in range(len(cams))]
@@ -58,6 +62,9 @@ def main() -> None:
         for name, values in times.items():
             out[f"ms_{name}"] = statistics.median(values)
         out["soft_overhead"] = out["ms_soft"] / out["ms_hard"] - 1.0
+        if "ms_plain" in out:
+            played = out["ms_soft" if bundle.manifest.get("silhouette_blend", False) else "ms_hard"]
+            out["neural_overhead"] = played / out["ms_plain"] - 1.0
         out["bundle_plays_soft"] = bool(bundle.manifest.get("silhouette_blend", False))
         print(json.dumps({k: round(v, 4) if isinstance(v, float) else v for k, v in out.items()}), flush=True)
 
