@@ -37,3 +37,26 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="session")
+def small_run(tmp_path_factory):
+    """One small pipeline run (a sphere SDF, fast preset, 128x128 held-out views), shared by the end-to-end and
+    the report tests: (DistillResult, run folder). Needs an OpenGL context; the tests using it skip without one."""
+    import torch
+
+    import neuras_distill as nd
+    from neuras_distill.fields.analytic import SphereSDF
+
+    old = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        out = tmp_path_factory.mktemp("e2e") / "run"
+        field = SphereSDF(center=(0.0, 0.0, 0.0), radius=0.5)
+        cams = field.default_cameras(10, 96, 96)
+        cfg = nd.load_config("fast", overrides={"train": {"steps": 250}, "eval": {"width": 128, "fps_frames": 5},
+                                                "texture": {"resolution": 128, "num_codes": 128}})
+        result = nd.distill(field, cams, cfg, out=out, progress=False, log=lambda m: None)
+    finally:
+        torch.set_num_threads(old)
+    return result, out

@@ -1,5 +1,6 @@
 """End to end on a small analytic scene: the whole pipeline, the run folder, the report's contract keys,
-OpenGL-vs-torch parity, and failures that leave nothing behind."""
+OpenGL-vs-torch parity, and failures that leave nothing behind. The run itself is conftest's ``small_run`` (shared
+with test_report_html.py)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,6 @@ import torch
 
 import neuras_distill as nd
 from neuras_distill.errors import BadInputError
-from neuras_distill.fields.analytic import SphereSDF
 from neuras_distill.playback.context import gl_available
 
 GL_OK, GL_REASON = gl_available()
@@ -20,18 +20,6 @@ pytestmark = [pytest.mark.gl, pytest.mark.skipif(not GL_OK, reason=f"no OpenGL c
 CONTRACT_KEYS = {"fps_before", "fps_after", "speedup", "resolution", "device", "psnr", "ssim", "lpips",
                  "distill_seconds", "stage_seconds", "mesh_faces", "texture_resolution", "bundle_bytes",
                  "left_out", "error_vs_runtime"}
-
-
-@pytest.fixture(scope="module")
-def small_run(tmp_path_factory):
-    torch.set_num_threads(2)
-    out = tmp_path_factory.mktemp("e2e") / "run"
-    field = SphereSDF(center=(0.0, 0.0, 0.0), radius=0.5)
-    cams = field.default_cameras(10, 96, 96)
-    cfg = nd.load_config("fast", overrides={"train": {"steps": 250}, "eval": {"width": 128, "fps_frames": 5},
-                                            "texture": {"resolution": 128, "num_codes": 128}})
-    result = nd.distill(field, cams, cfg, out=out, progress=False, log=lambda m: None)
-    return result, out
 
 
 def test_report_has_the_contract(small_run):

@@ -4,7 +4,8 @@ The browser test serves the exported folder over HTTP, opens ``index.html?camera
 system's /usr/bin/chromium through selenium and the system chromedriver; WebGL2 on SwiftShader) and compares the
 canvas with ``BundleRenderer`` for the same camera: a single-layer bundle away from the world origin with the
 silhouette pass and the default orbit camera, a two-layer bundle with back-face culling, and a bundle with
-skyboxes.
+skyboxes; and the same from a ``file://`` URL (the player then reads ``data.js``; test_report_html.py plays the
+run's report page that way).
 
 What may differ: SwiftShader rasterizes with 4 subpixel bits (``SUBPIXEL_BITS``), Mesa's llvmpipe with 8, so a
 pixel whose centre lies within ~1/32 pixel of a silhouette edge can be covered in one and not the other (GL allows
@@ -35,7 +36,7 @@ from PIL import Image
 
 from neuras_distill.bake.bundle import bake, load_bundle
 from neuras_distill.bake.glsl import GLSL_ES_GATHER, GLSL_ES_PRECISION, to_glsl_es
-from neuras_distill.bake.web import MARKER, export_web
+from neuras_distill.bake.web import DATA_SCRIPT, MARKER, PLAYER_FILES, export_web
 from neuras_distill.cli import main
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
@@ -150,6 +151,16 @@ def test_export_writes_the_documented_folder(runs, tmp_path):
         arr = b.textures[t["name"]]
         raw = np.frombuffer((out / t["file"]).read_bytes(), "<u2" if t["type"] == "uint16" else "<f4")
         assert np.array_equal(raw.reshape(arr.shape), arr) and (t["height"], t["width"]) == arr.shape[:2]
+    # data.js: every data file, base64, for file:// pages; nothing else
+    text = (out / DATA_SCRIPT).read_text("ascii")
+    prefix = "window.NEURAS_WEB_DATA = "
+    body = text[text.index(prefix) + len(prefix):].rstrip()
+    assert body.endswith(";")
+    embedded = json.loads(body[:-1])["files"]
+    on_disk = {p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()}
+    assert set(embedded) == on_disk - {DATA_SCRIPT, MARKER, *PLAYER_FILES} and "tex_u_index.bin" in embedded
+    for name, b64 in embedded.items():
+        assert base64.b64decode(b64) == (out / name).read_bytes(), name
     # exported again over our own folder: replaced, nothing left beside it
     export_web(bundle, out)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["web"]
@@ -257,6 +268,12 @@ def server(tmp_path_factory):
 def _play(browser, url: str, timeout: float = 120.0) -> np.ndarray:
     """(H, W, 3) uint8 canvas of the page at ``url`` once ``window.neurasReady``; fails with the player's error."""
     browser.get(url)
+    return wait_for_player(browser, timeout)
+
+
+def wait_for_player(browser, timeout: float = 120.0) -> np.ndarray:
+    """(H, W, 3) uint8 canvas of the player in the current browsing context (page or frame) once
+    ``window.neurasReady``; fails with the player's error."""
     deadline = time.monotonic() + timeout
     while True:
         state = browser.execute_script("return [window.neurasReady === true, window.neurasError || null];")
@@ -272,7 +289,7 @@ def _play(browser, url: str, timeout: float = 120.0) -> np.ndarray:
     return np.array(Image.open(io.BytesIO(png)).convert("RGB"))
 
 
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
     return float("inf") if mse == 0 else 10.0 * np.log10(255.0 ** 2 / mse)
 
@@ -295,11 +312,38 @@ def test_browser_plays_the_held_out_camera_like_the_desktop_player(runs, browser
     assert np.mean(np.abs(want.astype(float) - bg).sum(-1) > 3) > 0.05        # the view shows the scene
     with BundleRenderer(load_bundle(bundle)) as player:                        # ... the mesh included
         assert np.mean(np.abs(player.render(cams, camera, skybox=False) * 255.0 - bg).sum(-1) > 3) > 0.05
-    psnr = _psnr(got, want)
+    assert_matches_desktop(got, want, f"{kind} camera {camera}")
+
+
+def assert_matches_desktop(got: np.ndarray, want: np.ndarray, what: str) -> None:
+    """The web player's frame ``got`` is BundleRenderer's ``want`` up to rasterization rules (module docstring)."""
+    assert got.shape == want.shape, what
+    db = psnr(got, want)
     off = float(np.mean(np.abs(got.astype(int) - want.astype(int)).max(-1) > 2))
-    print(f"web player vs BundleRenderer, {kind} camera {camera}: {psnr:.2f} dB, {100 * off:.2f}% of pixels off")
-    assert psnr >= MIN_PSNR, f"{kind}: {psnr:.2f} dB < {MIN_PSNR} dB"
-    assert off <= 0.003, f"{kind}: {100 * off:.2f}% of the pixels differ by more than 2/255"
+    print(f"web player vs BundleRenderer, {what}: {db:.2f} dB, {100 * off:.2f}% of pixels off")
+    assert db >= MIN_PSNR, f"{what}: {db:.2f} dB < {MIN_PSNR} dB"
+    assert off <= 0.003, f"{what}: {100 * off:.2f}% of the pixels differ by more than 2/255"
+
+
+@needs_gl
+def test_an_exported_folder_plays_from_a_file_url(runs, browser, tmp_path):
+    """No server: from file:// the player reads data.js (fetch cannot read files) and draws the same frame."""
+    from neuras_distill.playback.renderer import BundleRenderer
+
+    bundle, cams = runs["two-layer"]
+    out = export_web(bundle, tmp_path / "web")
+    with BundleRenderer(load_bundle(bundle)) as player:
+        want = np.round(player.render(cams, 1) * 255.0).astype(np.uint8)
+    got = _play(browser, (out / "index.html").as_uri() + "?camera=1")
+    assert_matches_desktop(got, want, "two-layer camera 1 from file://")
+    (out / DATA_SCRIPT).unlink()                                    # an older export: says what to do
+    browser.get((out / "index.html").as_uri())
+    deadline = time.monotonic() + 60.0
+    error = None
+    while error is None and time.monotonic() < deadline:
+        error = browser.execute_script("return window.neurasError || null;")
+        time.sleep(0.1)
+    assert error is not None and "data.js is missing" in error and "http.server" in error, error
 
 
 @needs_gl

@@ -3,7 +3,8 @@
 Owns: :func:`export_web`, :func:`web_files` and the layout of the folder it writes. The folder plays the bundle in
 a browser with plain WebGL2 (``neuras_distill/web/player.js``: no library, no CDN, nothing fetched from outside
 the folder) by the same passes as ``playback/renderer.py``; ``python -m http.server`` inside it is enough to view
-it (``fetch`` does not read ``file://`` URLs).
+it, and so is opening ``index.html`` from ``file://`` (where ``fetch`` cannot read files, the player loads
+``data.js``: the same data, base64).
 
 Layout of DIR (every binary file raw little-endian, no header; the sizes are in scene.json)::
 
@@ -18,6 +19,9 @@ Layout of DIR (every binary file raw little-endian, no header; the sizes are in 
     faces.bin                   uint32 (F, 3) triangle indices; ``scene.json`` "layers" = ``mesh_layers``
     tex_<uniform>.bin           one per bundle texture: uint16 (H, W[, C]) -> R16UI..RGBA16UI, float32 ->
                                 R32F..RGBA32F, row 0 = v = 0, NEAREST (as ``BundleRenderer`` binds them)
+    data.js                     every file above (not the player, not the marker) base64 in one script:
+                                ``window.NEURAS_WEB_DATA = {"files": {path: base64}}``; the player loads it only
+                                from a ``file://`` page (over HTTP it fetches the files)
     shaders/*.vert|frag         GLSL ES 3.00 from ``glsl.to_glsl_es`` of the very sources the desktop compiles:
                                 the bundle's shader.frag (one file per mesh layer, ``shaders.shader_variant``),
                                 ``shaders.VERTEX_SHADER``, the bundle's sky.frag with ``SKY_VERTEX_SHADER``, the
@@ -25,13 +29,15 @@ Layout of DIR (every binary file raw little-endian, no header; the sizes are in 
     .neuras-distill-web         marker: this folder is ours, so a later export may replace it
 
 Decisions: the 16-bit index PNG is written out as raw uint16 because a browser decodes PNGs to 8 bits per channel;
-the float32 data (codebooks, vertices) is raw so the GPU gets the same bits as the desktop player. The folder is
-built beside DIR under a temporary name and renamed into place: on any error nothing is left, and an existing DIR
+the float32 data (codebooks, vertices) is raw so the GPU gets the same bits as the desktop player. data.js makes
+the folder about 2.3 times the size of its data (raw + 4/3 base64): the raw files stay because HTTP fetches them
+(no page downloads both), and the data is small (SIZES). The folder is built beside DIR under a temporary name and renamed into place: on any error nothing is left, and an existing DIR
 is replaced only when it carries the marker.
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import shutil
@@ -46,6 +52,7 @@ from ..errors import BadInputError
 
 MARKER = ".neuras-distill-web"
 PLAYER_FILES = ("index.html", "player.js")
+DATA_SCRIPT = "data.js"
 DEFAULT_CAMERA_SIZE = (640, 480)
 
 
@@ -130,11 +137,21 @@ def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
     }
     files["scene.json"] = json.dumps(scene, indent=1).encode("utf-8")
     files["cameras.json"] = cameras_json
+    files[DATA_SCRIPT] = data_script(files)
     web = resources.files("neuras_distill") / "web"
     for name in PLAYER_FILES:
         files[name] = (web / name).read_bytes()
     files[MARKER] = json.dumps({"generator": "neuras-distill", "version": __version__}).encode("utf-8")
     return files
+
+
+def data_script(files: dict[str, bytes]) -> bytes:
+    """data.js: ``window.NEURAS_WEB_DATA = {"files": {path: base64 of its bytes}}`` for every data file in
+    ``files`` (what the player reads when opened from ``file://``, where it cannot fetch)."""
+    embedded = {name: base64.b64encode(data).decode("ascii") for name, data in sorted(files.items())}
+    return ("// neuras-distill web player data: the folder's data files, base64, for file:// pages (player.js)\n"
+            "window.NEURAS_WEB_DATA = " + json.dumps({"files": embedded}, separators=(",", ":")) + ";\n"
+            ).encode("ascii")
 
 
 def export_web(bundle_path, out) -> Path:
@@ -173,4 +190,4 @@ def export_web(bundle_path, out) -> Path:
     return out
 
 
-__all__ = ["MARKER", "export_web", "web_files"]
+__all__ = ["DATA_SCRIPT", "MARKER", "data_script", "export_web", "web_files"]

@@ -1,6 +1,7 @@
-"""The run's report: ``report.json`` (contract keys), ``report.md``, side-by-side images (field | bundle |
-error | FLIP), native-resolution crops of the worst silhouette and interior areas, and the plot of error
-against run time (plus training PSNR against wall time). The only module that imports matplotlib."""
+"""The run's report: ``report.json`` (contract keys), ``report.md`` (and ``report.html`` from the same blocks,
+``report_html.py``), side-by-side images (field | bundle | error | FLIP), native-resolution crops of the worst
+silhouette and interior areas, and the plot of error against run time (plus training PSNR against wall time). The
+only module that imports matplotlib."""
 
 from __future__ import annotations
 
@@ -103,99 +104,155 @@ def summary_table(rep: dict) -> str:
     return "\n".join(lines)
 
 
-def _skybox_lines(rep: dict) -> list[str]:
+# ------------------------------------------------------------------------------------------ report.md / report.html
+# The report is a list of blocks, each a tuple whose first item names its kind; report.md (:func:`markdown`) and
+# report.html (``report_html.py``) render the same blocks, so every table row and figure is written once:
+#   ("heading", level, text)
+#   ("para", text)                       text may hold **bold** spans
+#   ("table", header, rows)              header and rows: tuples of cell strings
+#   ("list", items)                      items: (text, figure or None); text may hold **bold** spans
+#   ("figures", figures)                 figures: (src relative to the run folder, alt, caption or "")
+
+
+def summary_rows(rep: dict) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+    """Header and rows of the report's before/after table."""
+    w, h = rep["resolution"]
+    plain = rep.get("plain_texture")
+    rows = [
+        (f"FPS @ {w}x{h}", f"{rep['fps_before']:.3g}", f"{rep['fps_after']:.4g}"),
+        ("speedup", "", f"{rep['speedup']:.0f}x"),
+        ("PSNR vs field", "reference", f"{rep['psnr']:.2f} dB"),
+        ("SSIM vs field", "reference", f"{rep['ssim']:.4f}"),
+        *([("FLIP vs field", "reference", f"{rep['flip']:.4f}")] if "flip" in rep else []),
+        ("LPIPS", "", f"{rep['lpips'] if rep['lpips'] is not None else 'n/a: ' + rep.get('lpips_note', '')}"),
+        ("OpenGL vs torch forward (parity)", "", f"{rep['parity_psnr']:.1f} dB"),
+        *([("plain RGB texture instead of the neural shader", "",
+            f"{plain['psnr']:.2f} dB, FLIP {plain['flip']:.4f}, {plain['frame_time_ms']:.2f} ms per frame")]
+          if plain else []),
+        ("faces", "", f"{rep['mesh_faces']}"),
+        ("texture", "", f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
+                        f"{rep['codebook_size']} codes"),
+        ("bundle", "", _mb(rep.get("bundle_bytes"))),
+    ]
+    return ("", "before (field, volume rendering)", "after (bundle, OpenGL)"), rows
+
+
+def _skybox_blocks(rep: dict) -> list[tuple]:
     sky = rep.get("skybox") or {}
     if not sky.get("used"):
         return []
-    lines = ["## Skyboxes", "", f"{len(sky['half_sizes'])} cube layers around {[round(c, 3) for c in sky['center']]}, "
-             "half sizes " + ", ".join(f"{r:.4g}" for r in sky["half_sizes"]) + f", {sky['resolution']}^2 texels "
-             f"per face, {sky['num_codes']} codes. Why: {sky['reason']}.", ""]
+    blocks = [("heading", 2, "Skyboxes"),
+              ("para", f"{len(sky['half_sizes'])} cube layers around {[round(c, 3) for c in sky['center']]}, "
+                       "half sizes " + ", ".join(f"{r:.4g}" for r in sky["half_sizes"])
+                       + f", {sky['resolution']}^2 texels per face, {sky['num_codes']} codes. "
+                       f"Why: {sky['reason']}.")]
     if rep.get("extrapolation"):
-        lines += ["Lane shifts (held-out poses moved sideways; views/lane_*.png): "
-                  + ", ".join(f"{k}: {q['psnr']:.2f} dB" for k, q in rep["extrapolation"].items()), ""]
+        blocks.append(("para", "Lane shifts (held-out poses moved sideways; views/lane_*.png): "
+                       + ", ".join(f"{k}: {q['psnr']:.2f} dB" for k, q in rep["extrapolation"].items())))
     if rep.get("ablation"):
         a = rep["ablation"]
-        lines += [f"Ablation: held-out PSNR {a['psnr_with_skyboxes']:.2f} dB with skyboxes, "
-                  f"{a['psnr_without_skyboxes']:.2f} dB without ({a['drop_db']:.2f} dB drop; {a['how']}).", ""]
-    return lines
+        blocks.append(("para", f"Ablation: held-out PSNR {a['psnr_with_skyboxes']:.2f} dB with skyboxes, "
+                               f"{a['psnr_without_skyboxes']:.2f} dB without ({a['drop_db']:.2f} dB drop; "
+                               f"{a['how']})."))
+    return blocks
 
 
-def _fidelity_lines(rep: dict) -> list[str]:
-    """report.md section: definitions, per-view FLIP / region PSNR / holes, and what each crop shows."""
+def _fidelity_blocks(rep: dict) -> list[tuple]:
+    """Section: definitions, per-view FLIP / region PSNR / holes, and what each crop shows."""
     if "flip" not in rep:
         return []
     band = rep.get("silhouette_band_px")
-    lines = ["## Fidelity by region", "",
-             "Regions come from the field's own opacity of each held-out view. "
-             f"**Silhouette band**: pixels within {band} px of the boundary of the field's mask "
-             "(opacity > 0.5), on either side, plus every pixel with 0.02 < opacity < 0.98 "
-             "(the soft fringe); "
-             "the width is max(2, round(0.004 x image diagonal)). "
-             "**Interior**: opacity > 0.98 and not in the band. "
-             "**Holes**: pixels where the field is opaque (opacity > 0.5) but the bundle's mesh "
-             "covers nothing (rasterized as played), as a fraction of all held-out pixels. "
-             "**FLIP**: NVIDIA's LDR-FLIP perceptual error (0 = no visible difference, 1 = maximal), at its "
-             "default 67 pixels per degree; means are means of per-view values.", "",
-             "| view | FLIP | PSNR | PSNR interior | PSNR silhouette | holes |", "|---|---|---|---|---|---|"]
-    for i, fl in enumerate(rep["flip_per_view"]):
-        lines.append(f"| {i} | {fl:.4f} | {_db(rep['psnr_per_view'][i])} "
-                     f"| {_db(rep['psnr_interior_per_view'][i])} | {_db(rep['psnr_silhouette_per_view'][i])} "
-                     f"| {100 * rep['hole_fraction_per_view'][i]:.3f}% |")
-    lines.append(f"| mean | {rep['flip']:.4f} | {_db(rep['psnr'])} | {_db(rep['psnr_interior'])} "
-                 f"| {_db(rep['psnr_silhouette'])} | {100 * rep['hole_fraction']:.3f}% |")
-    lines += ["", "Crops at native resolution (field | bundle | FLIP, magma: black 0 to pale yellow 1), each "
-                  "centred where the FLIP map, box-filtered over 32x32 pixels of one region, is highest:", ""]
-    for i, crops in enumerate(rep.get("crops") or []):
+    rows = [(f"{i}", f"{fl:.4f}", _db(rep["psnr_per_view"][i]), _db(rep["psnr_interior_per_view"][i]),
+             _db(rep["psnr_silhouette_per_view"][i]), f"{100 * rep['hole_fraction_per_view'][i]:.3f}%")
+            for i, fl in enumerate(rep["flip_per_view"])]
+    rows.append(("mean", f"{rep['flip']:.4f}", _db(rep["psnr"]), _db(rep["psnr_interior"]),
+                 _db(rep["psnr_silhouette"]), f"{100 * rep['hole_fraction']:.3f}%"))
+    crops = []
+    for i, view_crops in enumerate(rep.get("crops") or []):
         for key, name in CROP_NAMES.items():
-            c = crops.get(key)
+            c = view_crops.get(key)
             if c is None:
-                lines.append(f"- view {i}, {name}: none (the view has no {name} pixels)")
+                crops.append((f"view {i}, {name}: none (the view has no {name} pixels)", None))
                 continue
             x0, y0, cw, ch = c["box"]
-            lines.append(f"- view {i}, {name} (worst FLIP, mean {c['flip']:.4f} on its {name} pixels), "
-                         f"x {x0}-{x0 + cw}, y {y0}-{y0 + ch}: "
-                         f"![view {i} {name}](views/crop_{i:02d}_{key}.png)")
-    return lines + [""]
+            crops.append((f"view {i}, {name} (worst FLIP, mean {c['flip']:.4f} on its {name} pixels), "
+                          f"x {x0}-{x0 + cw}, y {y0}-{y0 + ch}:",
+                          (f"views/crop_{i:02d}_{key}.png", f"view {i} {name}", "")))
+    return [
+        ("heading", 2, "Fidelity by region"),
+        ("para", "Regions come from the field's own opacity of each held-out view. "
+                 f"**Silhouette band**: pixels within {band} px of the boundary of the field's mask "
+                 "(opacity > 0.5), on either side, plus every pixel with 0.02 < opacity < 0.98 (the soft fringe); "
+                 "the width is max(2, round(0.004 x image diagonal)). "
+                 "**Interior**: opacity > 0.98 and not in the band. "
+                 "**Holes**: pixels where the field is opaque (opacity > 0.5) but the bundle's mesh "
+                 "covers nothing (rasterized as played), as a fraction of all held-out pixels. "
+                 "**FLIP**: NVIDIA's LDR-FLIP perceptual error (0 = no visible difference, 1 = maximal), at its "
+                 "default 67 pixels per degree; means are means of per-view values."),
+        ("table", ("view", "FLIP", "PSNR", "PSNR interior", "PSNR silhouette", "holes"), rows),
+        ("para", "Crops at native resolution (field | bundle | FLIP, magma: black 0 to pale yellow 1), each "
+                 "centred where the FLIP map, box-filtered over 32x32 pixels of one region, is highest:"),
+        ("list", crops),
+    ]
+
+
+def report_blocks(rep: dict) -> list[tuple]:
+    """The report as blocks (see above): what report.md and report.html both show."""
+    w, h = rep["resolution"]
+    header, rows = summary_rows(rep)
+    stages = [(k, f"{v:.1f}") for k, v in rep["stage_seconds"].items()]
+    stages.append(("total", f"{rep['distill_seconds']:.1f}"))
+    runtime = [(p["label"], f"{p['seconds_per_frame']:.4f}", f"{p['psnr']:.2f}") for p in rep["error_vs_runtime"]]
+    left_out = [(f"**{i['component']}**: {i['reason']}", None) for i in rep["left_out"]] or [("nothing", None)]
+    views = [(f"views/view_{i:02d}.png", f"view {i}", f"PSNR {p:.2f} dB")
+             for i, p in enumerate(rep["psnr_per_view"])]
+    return [
+        ("heading", 1, "neuras-distill report"),
+        ("para", f"Held-out views: {rep['views']['test']} at {w}x{h}; trained on {rep['views']['train']} views at "
+                 f"{rep['views']['train_resolution'][0]}x{rep['views']['train_resolution'][1]}."),
+        ("table", header, rows),
+        ("para", f"Devices: field on {rep['device']['field']}; bundle on {rep['device']['bundle']}."),
+        ("heading", 2, "Time per stage"),
+        ("table", ("stage", "seconds"), stages),
+        *_skybox_blocks(rep),
+        ("heading", 2, "Left out"),
+        ("list", left_out),
+        ("heading", 2, "Error against run time (first held-out view, against the field at twice the steps)"),
+        ("table", ("renderer", "seconds/frame", "PSNR"), runtime),
+        ("figures", [("error_vs_runtime.png", "error vs runtime", "")]),
+        *_fidelity_blocks(rep),
+        ("heading", 2, "Held-out views (field | bundle | error x10" + (" | FLIP" if "flip" in rep else "") + ")"),
+        ("figures", views),
+    ]
+
+
+def _md_row(cells) -> str:
+    return "|" + "|".join(f" {c} " if c else " " for c in cells) + "|"
+
+
+def _md_figure(fig) -> str:
+    src, alt, caption = fig
+    return f"![{alt}]({src})" + (f" {caption}" if caption else "")
 
 
 def markdown(rep: dict) -> str:
-    w, h = rep["resolution"]
-    flip_row = [f"| FLIP vs field | reference | {rep['flip']:.4f} |"] if "flip" in rep else []
-    lines = [
-        "# neuras-distill report", "",
-        f"Held-out views: {rep['views']['test']} at {w}x{h}; trained on {rep['views']['train']} views at "
-        f"{rep['views']['train_resolution'][0]}x{rep['views']['train_resolution'][1]}.", "",
-        "| | before (field, volume rendering) | after (bundle, OpenGL) |", "|---|---|---|",
-        f"| FPS @ {w}x{h} | {rep['fps_before']:.3g} | {rep['fps_after']:.4g} |",
-        f"| speedup | | {rep['speedup']:.0f}x |",
-        f"| PSNR vs field | reference | {rep['psnr']:.2f} dB |",
-        f"| SSIM vs field | reference | {rep['ssim']:.4f} |",
-        *flip_row,
-        f"| LPIPS | | {rep['lpips'] if rep['lpips'] is not None else 'n/a: ' + rep.get('lpips_note', '')} |",
-        f"| OpenGL vs torch forward (parity) | | {rep['parity_psnr']:.1f} dB |",
-        *([f"| plain RGB texture instead of the neural shader | | {rep['plain_texture']['psnr']:.2f} dB, FLIP "
-           f"{rep['plain_texture']['flip']:.4f}, {rep['plain_texture']['frame_time_ms']:.2f} ms per frame |"]
-          if rep.get("plain_texture") else []),
-        f"| faces | | {rep['mesh_faces']} |",
-        f"| texture | | {rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
-        f"{rep['codebook_size']} codes |",
-        f"| bundle | | {_mb(rep.get('bundle_bytes'))} |", "",
-        f"Devices: field on {rep['device']['field']}; bundle on {rep['device']['bundle']}.", "",
-        "## Time per stage", "", "| stage | seconds |", "|---|---|",
-        *[f"| {k} | {v:.1f} |" for k, v in rep["stage_seconds"].items()],
-        f"| total | {rep['distill_seconds']:.1f} |", "",
-        *_skybox_lines(rep),
-        "## Left out", "",
-        *([f"- **{i['component']}**: {i['reason']}" for i in rep["left_out"]] or ["- nothing"]), "",
-        "## Error against run time (first held-out view, against the field at twice the steps)", "",
-        "| renderer | seconds/frame | PSNR |", "|---|---|---|",
-        *[f"| {p['label']} | {p['seconds_per_frame']:.4f} | {p['psnr']:.2f} |" for p in rep["error_vs_runtime"]],
-        "", "![error vs runtime](error_vs_runtime.png)", "",
-        *_fidelity_lines(rep),
-        "## Held-out views (field | bundle | error x10" + (" | FLIP" if "flip" in rep else "") + ")", "",
-        *[f"![view {i}](views/view_{i:02d}.png) PSNR {p:.2f} dB" for i, p in enumerate(rep["psnr_per_view"])],
-        "",
-    ]
+    """report.md: the blocks of :func:`report_blocks` as Markdown, each followed by a blank line."""
+    lines = []
+    for block in report_blocks(rep):
+        kind = block[0]
+        if kind == "heading":
+            lines.append("#" * block[1] + " " + block[2])
+        elif kind == "para":
+            lines.append(block[1])
+        elif kind == "table":
+            lines += [_md_row(block[1]), "|" + "---|" * len(block[1])] + [_md_row(r) for r in block[2]]
+        elif kind == "list":
+            lines += [f"- {text}" + (f" {_md_figure(fig)}" if fig else "") for text, fig in block[1]]
+        elif kind == "figures":
+            lines += [_md_figure(fig) for fig in block[1]]
+        else:
+            raise ValueError(f"unknown report block {kind!r}")
+        lines.append("")
     return "\n".join(lines)
 
 
@@ -237,7 +294,8 @@ def plot(rep: dict, path: Path) -> None:
 
 def write_run_outputs(root: Path, rep: dict, field_images, bundle_images, extra_views: dict | None = None,
                       flip_maps: list | None = None) -> None:
-    """report.json, report.md, the error-vs-runtime plot and views/: per held-out view field | bundle | error
+    """report.json, report.md, report.html with the web player web/ (``report_html``), the error-vs-runtime plot
+    and views/: per held-out view field | bundle | error
     (| FLIP with ``flip_maps`` [(H, W) float32]), and then views/crop_<i>_a.png and _b.png, the windows
     ``rep["crops"]`` names; ``extra_views`` {name: [(field, bundle), ...]} are saved as
     views/<name>_<i>.png."""
@@ -258,6 +316,9 @@ def write_run_outputs(root: Path, rep: dict, field_images, bundle_images, extra_
     plot(rep, root / "error_vs_runtime.png")
     (root / "report.json").write_text(json.dumps(rep, indent=2, default=_json_default))
     (root / "report.md").write_text(markdown(rep))
+    from .report_html import write_report_html
+
+    write_report_html(root, rep)
 
 
 def _json_default(obj):

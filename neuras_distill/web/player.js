@@ -14,7 +14,9 @@
 // float32 (Cameras.from_json), the camera is moved into the bundle frame (origin subtracted, rounded to float32
 // like projection.shift_cameras), and only the final matrices are rounded to float32.
 //
-// URL: index.html?camera=N plays held-out camera N of cameras.json ("test") at its own size (default 0).
+// Data: fetched over HTTP; from a file:// page (where fetch cannot read files) the same files come from data.js.
+// URL: index.html?camera=N plays held-out camera N of cameras.json ("test") at its own size (default 0); &fit
+// shows the canvas as wide as the page (the report's iframe); the frame keeps the camera's size.
 // Drag to orbit (around the point of the view axis level with the mesh centre), wheel to zoom. The FPS counter
 // shows frames drawn per second (requestAnimationFrame: capped by the display's refresh rate).
 // window.neurasReady = true once the first frame is complete; window.neurasError = the message on failure.
@@ -32,14 +34,39 @@
     console.error(msg);
   }
 
+  // ------------------------------------------------------------------ data: fetched, or data.js from file://
+  // Over HTTP the files are fetched. A file:// page cannot fetch, so there the player loads data.js (written by
+  // the export beside the files: window.NEURAS_WEB_DATA = {files: {path: base64}}) with a <script> tag, once.
+  let embedded = null;
+  function loadDataScript() {
+    if (window.NEURAS_WEB_DATA) return Promise.resolve(window.NEURAS_WEB_DATA);
+    return new Promise((resolve, reject) => {
+      const s = document.createElement("script");
+      s.src = "data.js";
+      s.onload = () => (window.NEURAS_WEB_DATA ? resolve(window.NEURAS_WEB_DATA)
+        : reject(new Error("data.js did not set window.NEURAS_WEB_DATA")));
+      s.onerror = () => reject(new Error("data.js is missing: export again, or serve this folder (python -m http.server)"));
+      document.head.appendChild(s);
+    });
+  }
+  async function embeddedBytes(path) {
+    if (!embedded) embedded = loadDataScript();
+    const b64 = (await embedded).files[path];
+    if (b64 === undefined) throw new Error(`${path} is not in data.js`);
+    const bin = atob(b64);
+    const out = new Uint8Array(bin.length);
+    for (let i = 0; i < bin.length; i++) out[i] = bin.charCodeAt(i);
+    return out.buffer;
+  }
+  const fromFile = window.location.protocol === "file:";
   async function fetchOk(path) {
     const r = await fetch(path);
     if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
     return r;
   }
-  const getJSON = async (p) => (await fetchOk(p)).json();
-  const getText = async (p) => (await fetchOk(p)).text();
-  const getBytes = async (p) => (await fetchOk(p)).arrayBuffer();
+  const getBytes = async (p) => (fromFile ? embeddedBytes(p) : (await fetchOk(p)).arrayBuffer());
+  const getText = async (p) => (fromFile ? new TextDecoder().decode(await embeddedBytes(p)) : (await fetchOk(p)).text());
+  const getJSON = async (p) => JSON.parse(await getText(p));
 
   // ------------------------------------------------------------------ maths (playback/projection.py)
   // Matrices are arrays of rows: m[r][c]; float64 throughout.
@@ -201,6 +228,7 @@
       throw new Error(`?camera=${params.get("camera")}: cameras.json has ${cams.length} held-out cameras (0..${cams.length - 1})`);
     }
     const canvas = document.getElementById("view");
+    if (params.has("fit")) canvas.classList.add("fit");     // shown as wide as the page (pixels unchanged)
     const gl = canvas.getContext("webgl2", { antialias: false, alpha: false, depth: false, stencil: false,
                                              preserveDrawingBuffer: true, premultipliedAlpha: false });
     if (!gl) throw new Error("this browser has no WebGL2");
