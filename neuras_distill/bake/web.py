@@ -31,8 +31,10 @@ Layout of DIR (every binary file raw little-endian, no header; the sizes are in 
 Decisions: the 16-bit index PNG is written out as raw uint16 because a browser decodes PNGs to 8 bits per channel;
 the float32 data (codebooks, vertices) is raw so the GPU gets the same bits as the desktop player. data.js makes
 the folder about 2.3 times the size of its data (raw + 4/3 base64): the raw files stay because HTTP fetches them
-(no page downloads both), and the data is small (SIZES). The folder is built beside DIR under a temporary name and renamed into place: on any error nothing is left, and an existing DIR
-is replaced only when it carries the marker.
+(no page downloads both), and the data is small (the default demo: a 0.89 MB bundle, a 3.2 MB folder of which
+data.js is 1.8 MB; the run folder's views/ PNGs are 9.4 MB). The folder is built beside DIR under a temporary name
+and renamed into place: on any error nothing is left, and an existing DIR is replaced only when it carries the
+marker.
 """
 
 from __future__ import annotations
