@@ -12,7 +12,7 @@ Layout of DIR (every binary file raw little-endian, no header; the sizes are in 
     scene.json                  what the player needs: textures, mesh draw calls, passes, bounds, background
     cameras.json                the run's {"train": Cameras.to_json(), "test": ...} copied byte for byte from
                                 the bundle's parent folder; without one a default orbit camera (the framing of
-                                ``viewer.orbit_cameras_for``, 640 x 480, world frame) as "test" camera 0 and
+                                ``viewer.world_orbit_cameras``, 640 x 480, world frame) as "test" camera 0 and
                                 "default_orbit": true. ``index.html?camera=N`` plays held-out (test) camera N.
     mesh.bin                    float32 (V, 8) interleaved: position (bundle frame, relative to the origin),
                                 uv, ``MeshData.vertex_normals`` (the VBO layout of ``rasterize.mesh_vertex_array``)
@@ -71,12 +71,9 @@ def _cameras_json(bundle, src: Path) -> bytes:
             raise BadInputError(f"{path} is not a cameras.json of a run ({exc.__class__.__name__}: {exc}); "
                                 "fix or remove it") from None
         return path.read_bytes()
-    from ..playback.viewer import orbit_cameras_for
+    from ..playback.viewer import world_orbit_cameras
 
-    cams = orbit_cameras_for(bundle.mesh, 1, *DEFAULT_CAMERA_SIZE)
-    c2w = cams.c2w.double().numpy()
-    c2w[:, :3, 3] += np.asarray(bundle.origin, np.float64).reshape(3)     # bundle frame -> world
-    world = Cameras(c2w.astype(np.float32), cams.fx, cams.fy, cams.cx, cams.cy, cams.width, cams.height)
+    world = world_orbit_cameras(bundle, 1, *DEFAULT_CAMERA_SIZE)
     return json.dumps({"test": world.to_json(), "default_orbit": True}).encode("utf-8")
 
 
