@@ -26,6 +26,11 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
                    help="width of the held-out frames that are timed and compared (0: the cameras' own size)")
     p.add_argument("--skyboxes", choices=["auto", "on", "off"], default=None,
                    help="neural skyboxes for what lies beyond the mesh (auto: decided from the field and cameras)")
+    p.add_argument("--fresh", action="store_true",
+                   help="ignore the stages stored by an earlier or killed run into the same --out (recompute all)")
+    p.add_argument("--no-keep-work", dest="keep_work", action="store_false",
+                   help="remove the work area (stored stages, G-buffers) after success instead of keeping it in "
+                        "<out>/work for the next run into the same folder")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -146,8 +151,8 @@ def _run_scene(args, name: str) -> int:
     out = Path(args.out or f"runs/{name}" + ("" if args.kind in (None, "sdf") else f"-{args.kind}"))
     check_output_folder(out.resolve())  # fail before any work
     field = make_scene(name, kind=args.kind)
-    distill(field, None, cfg, out, progress=not args.quiet,
-            log=(lambda m: None) if args.quiet else None)
+    distill(field, None, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
+            fresh=args.fresh, keep_work=args.keep_work)
     return 0
 
 
@@ -187,7 +192,8 @@ def _run_checkpoint(args, path: str, adapter: str, options: dict) -> int:
     if cameras is None and getattr(field, "cameras", None) is None and cam_path is None:
         require(callable(getattr(field, "default_cameras", None)),
                 f"{src} stores no cameras; pass --cameras transforms.json")
-    distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None)
+    distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
+            fresh=args.fresh, keep_work=args.keep_work)
     return 0
 
 
@@ -339,7 +345,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"neuras-distill: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("neuras-distill: interrupted; nothing was written", file=sys.stderr)
+        print("neuras-distill: interrupted; no run folder was written (finished stages, if any, are kept for the "
+              "same command to reuse)", file=sys.stderr)
         return 130
     except Exception as exc:  # an internal error: show the traceback for the bug report
         from .playback.context import GLUnavailable

@@ -152,6 +152,9 @@ class TrainConfig:
     1.3-1.4 dB better on both SDF fixtures than 0.15; see neural/train.py)."""
     seed: int = 0
     """Random seed for initialisation and batches."""
+    checkpoint_every_s: float = 30.0
+    """Seconds of training between checkpoints in the run's work area (a killed run resumes from the last
+    one; ``neural.train_checkpoint``). Does not change the result, so it is not part of any cache key."""
 
 
 @dataclass
@@ -198,6 +201,7 @@ class DistillConfig:
         require(t.view_dependence in ("auto", "on", "off"),
                 f"view_dependence must be auto, on or off, got {t.view_dependence!r}")
         require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
+        require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")
         require(tr.time_budget_s >= 0, f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
         require(0.0 <= tr.vq_warmup <= 1.0, f"vq_warmup must be in 0..1 (1: quantize after training), "
                                             f"got {tr.vq_warmup}")

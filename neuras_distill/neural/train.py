@@ -71,6 +71,8 @@ class TrainLog:
     touched_fraction: float = 0.0
     filled_texels: int = 0
     sky_touched_fraction: float | None = None
+    resumed_from_step: int | None = None
+    checkpoints_written: int = 0
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -90,7 +92,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         texture_lr: float | None = None, batch_patches: int = 32, patch: int = 16, ssim_weight: float = 0.0,
         vq_weight: float = 1.0, vq_warmup: float = 1.0, lr_final_ratio: float = 0.1,
         time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
-        seed: int = 0, num_threads: int | None = None, skybox=None, origins=None) -> TrainLog:
+        seed: int = 0, num_threads: int | None = None, skybox=None, origins=None,
+        checkpoint=None) -> TrainLog:
     """Train ``model`` on teacher images.
 
     Args:
@@ -107,6 +110,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             On a busy shared CPU, 1 thread avoids OpenMP oversubscription (measured 108 vs 1.8 steps/s).
         skybox: optional :class:`SkyboxModel` trained jointly on the pixels the mesh does not cover.
         origins: (N, 3) float32 camera centres relative to ``skybox.layers.center`` (required with skybox).
+        checkpoint: optional :class:`neural.train_checkpoint.TrainCheckpoint`: the loop starts from its stored
+            state when it has one (``TrainLog.resumed_from_step``) and saves its state when it is due.
     Returns:
         :class:`TrainLog`. The model is left in eval mode with untouched texels filled.
     """
@@ -166,6 +171,11 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     bar = tqdm(total=steps, file=sys.stderr, disable=not progress, desc="distill", leave=False)
     t0 = time.perf_counter()
     step = 0
+    stored = checkpoint.load() if checkpoint is not None else None
+    if stored is not None:
+        step = _restore(stored, model, skybox, models, opt_tex, opt, gen, log)
+        t0 -= float(stored["elapsed"])
+        bar.update(step)
     try:
         while step < steps:
             elapsed = time.perf_counter() - t0
@@ -230,6 +240,9 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
                     entry.update(perplexity=model.vq.perplexity, used_fraction=model.vq.used_fraction)
                 log.entries.append(entry)
                 bar.set_postfix(psnr=f"{entry['psnr']:.2f}", loss=f"{entry['loss']:.4f}")
+            if checkpoint is not None and step < steps and checkpoint.due():
+                checkpoint.save(_snapshot(step, time.perf_counter() - t0, model, skybox, models, opt_tex, opt,
+                                          gen, log))
     finally:
         bar.close()
         torch.set_num_threads(old_threads)
@@ -237,7 +250,10 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         for m_ in models:
             m_.record_touched = False
     log.steps = step
-    log.steps_per_second = step / max(log.seconds, 1e-9)
+    log.steps_per_second = (step - (log.resumed_from_step or 0)) / max(
+        log.seconds - (float(stored["elapsed"]) if stored is not None else 0.0), 1e-9)
+    if checkpoint is not None:
+        log.checkpoints_written = checkpoint.saved
     if model.use_vq and not model.quantizing:      # quantize after training (or the warm-up outlasted the run)
         for m_ in models:
             m_.start_vq()
@@ -252,6 +268,30 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         skybox.atlas.fill_unseen_texels()
         skybox.eval()
     return log
+
+
+def _snapshot(step: int, elapsed: float, model, skybox, models, opt_tex, opt, gen, log: TrainLog) -> dict:
+    """Everything the loop needs to go on from ``step`` (:class:`neural.train_checkpoint.TrainCheckpoint`)."""
+    return {"step": step, "elapsed": elapsed, "model": model.state_dict(),
+            "skybox": skybox.state_dict() if skybox is not None else None,
+            "touched": [m.touched.clone() for m in models],
+            "opt_tex": opt_tex.state_dict(), "opt": opt.state_dict(), "generator": gen.get_state(),
+            "entries": list(log.entries), "stopped_by": log.stopped_by}
+
+
+def _restore(state: dict, model, skybox, models, opt_tex, opt, gen, log: TrainLog) -> int:
+    """Load a :func:`_snapshot` into the loop's objects; returns its step."""
+    model.load_state_dict(state["model"])
+    if skybox is not None:
+        skybox.load_state_dict(state["skybox"])
+    for m, touched in zip(models, state["touched"]):
+        m.touched.copy_(touched)
+    opt_tex.load_state_dict(state["opt_tex"])
+    opt.load_state_dict(state["opt"])
+    gen.set_state(state["generator"])
+    log.entries = list(state["entries"])
+    log.resumed_from_step = int(state["step"])
+    return int(state["step"])
 
 
 @torch.no_grad()

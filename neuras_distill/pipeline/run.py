@@ -1,8 +1,15 @@
 """``distill(field, cameras, config, out)``: the whole pipeline, stage by stage, into one run folder.
 
 Stages (each timed, each with a small manifest under ``stages/<name>/``): cameras -> teacher -> geometry ->
-gbuffer -> distill -> bake -> evaluate. The run folder is written in a temporary sibling and moved into
-place at the end, so a failed run leaves nothing half-written.
+gbuffer -> distill -> bake -> evaluate. The run folder is written in a hidden sibling and moved into place at
+the end, so a failed run leaves nothing half-written (``pipeline.rundir``).
+
+Resuming: the expensive results (teacher renders, the training plan, the mesh, the G-buffers, the trained
+model, the field's held-out renders) are stored in the run's work area under keys that digest exactly their
+inputs (``pipeline.cache``); the same command after a kill reuses every finished one and continues training
+from its last checkpoint, and a changed setting recomputes only the stages downstream of it. Each stage
+seeds torch and numpy from the run's seed and its own name, so its result does not depend on whether the
+stages before it ran or were reused.
 
 Frames: the field and the teacher work in world coordinates. Everything that runs in float32 on the GPU
 side (G-buffers, training inputs, the bundle) works relative to the foreground box's centre (``origin``,
@@ -26,7 +33,9 @@ from ..config import DistillConfig, load_config
 from ..errors import BadInputError, require
 from ..render.cameras import Cameras
 from . import decisions, evaluate, report as report_mod
+from .cache import StageCache, digest, field_fingerprint
 from .rundir import RunFolder
+from .stage_results import FieldViews, GeometryResult, TeacherResult, TrainedModel, load_gbuffer, save_gbuffer
 
 
 @dataclass
@@ -42,16 +51,17 @@ class DistillResult:
 
 
 class _Stages:
-    """Times stages and writes their manifests."""
+    """Times stages, seeds each one (:func:`_seed_stage`) and writes their manifests."""
 
-    def __init__(self, root: Path | None, log):
+    def __init__(self, root: Path | None, log, seed: int = 0):
         self.root, self.log, self.seconds, self._t0 = root, log, {}, None
-        self.index = 0
+        self.index, self.seed = 0, seed
 
     def start(self, name: str, what: str) -> None:
         self.index += 1
         self.log(f"[{self.index}/7] {name}: {what}")
         self._name, self._t0 = name, time.perf_counter()
+        _seed_stage(self.seed, name)
 
     def done(self, **info) -> float:
         seconds = time.perf_counter() - self._t0
@@ -62,6 +72,29 @@ class _Stages:
             (folder / "manifest.json").write_text(json.dumps(
                 {"stage": self._name, "version": __version__, "seconds": seconds, **info}, indent=2, default=str))
         return seconds
+
+
+def _seed_stage(seed: int, stage: str) -> None:
+    """Seed torch and numpy from the run's seed and the stage's name."""
+    import zlib
+
+    s = (int(seed) * 1_000_003 + zlib.crc32(stage.encode())) % 2**31
+    torch.manual_seed(s)
+    np.random.seed(s)
+
+
+def _cached(cache: StageCache | None, stage: str, key: str, compute, save, load):
+    """``cache.cached`` when the run has a work area, else just ``compute()``."""
+    if cache is None:
+        return compute()
+    return cache.cached(stage, key, compute, save, load)
+
+
+def _settings(section, drop: tuple = ()) -> dict:
+    """A config section as a dict for cache keys, without the settings that do not change results."""
+    from dataclasses import asdict
+
+    return {k: v for k, v in asdict(section).items() if k not in drop}
 
 
 def _device_info(gl_info: dict | None) -> dict:
@@ -241,7 +274,8 @@ def _resolve_core_view_dependence(field, mesh, cfg: DistillConfig, use_viewdir: 
 
 
 def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict | None = None,
-            out: str | Path | None = None, *, log=None, progress: bool = True) -> DistillResult:
+            out: str | Path | None = None, *, log=None, progress: bool = True, fresh: bool = False,
+            keep_work: bool = True) -> DistillResult:
     """Distill ``field`` into a bundle that OpenGL plays, and measure it against the field.
 
     Args:
@@ -249,7 +283,12 @@ def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict 
         cameras: the cameras to train and evaluate on (OpenGL convention); every ``test_every``-th is held
             out. When None: ``field.cameras`` if the field brings them, else the field's ``default_cameras``.
         config: a DistillConfig, a dict of overrides, or None for the defaults.
-        out: run folder (bundle, report.json, report.md, images). None: nothing is written.
+        out: run folder (bundle, report.json, report.md, images). None: nothing is written (and nothing is
+            reused). A run killed before it finished leaves ``.<name>.partial`` beside it; the same call
+            reuses its finished stages and training checkpoint (``report["resumed"]``).
+        fresh: ignore every stored stage (they are recomputed and stored again).
+        keep_work: keep the work area (``<out>/work``: stored stages, G-buffers) after success, for the next
+            run into the same folder; False removes it.
     Returns:
         DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``.
     Raises:
@@ -272,9 +311,19 @@ def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict 
 
     if out is None:
         return _run(field, cameras, cfg, None, log, progress, stability)
-    folder = RunFolder(out)
+    folder = RunFolder(out, keep_work=keep_work)
     with folder as tmp:
-        result = _run(field, cameras, cfg, tmp, log, progress, stability)
+        if folder.resumed_folder:
+            log(f"found an unfinished run in {tmp.name}: reusing its finished stages")
+        for path in folder.removed_leftovers:
+            log(f"removed {path.name} (left by a killed run of an earlier version)")
+        cache = StageCache(folder.work, [folder.previous_work], fresh=fresh, log=log)
+        try:
+            result = _run(field, cameras, cfg, tmp, log, progress, stability, cache=cache, keep_work=keep_work)
+        except BaseException:
+            if folder.work.is_dir() and any(folder.work.glob("*/*/done.json")):
+                log(f"finished stages are kept in {tmp}; the same command reuses them (--fresh ignores them)")
+            raise
     result.out = folder.out
     log(f"run folder: {folder.out}")
     return result
@@ -330,7 +379,7 @@ def _pick_cameras(field, cameras, cfg: DistillConfig) -> Cameras:
 
 
 def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool,
-         stability: dict | None = None) -> DistillResult:
+         stability: dict | None = None, cache: StageCache | None = None, keep_work: bool = True) -> DistillResult:
     from ..bake.bundle import bake
     from ..neural.model import NeuralTextureModel, view_inputs
     from ..neural.train import fit
@@ -344,9 +393,13 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     from ..playback.shaders import VERTEX_SHADER
     from ..render.volume import VolumeRenderer
 
+    from ..neural.train_checkpoint import TrainCheckpoint
+
     t_start = time.perf_counter()
-    stages = _Stages(root, log)
+    stages = _Stages(root, log, cfg.train.seed)
     left_out: list[dict] = []
+    keys: dict[str, str] = {}
+    fingerprint = field_fingerprint(field)
 
     # 1. cameras ------------------------------------------------------------------------------------
     stages.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
@@ -367,13 +420,25 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     stages.start("teacher", f"volume-rendering {len(train)} training views at {train.width}x{train.height}, "
                             f"{cfg.teacher.num_steps} steps/ray")
     teacher = VolumeRenderer(field, num_steps=cfg.teacher.num_steps)
-    teacher_views = evaluate.render_field_views(teacher, train, _progress_printer(log, "teacher", progress),
-                                                depths=True)
-    targets = np.stack(teacher_views.images).astype(np.float32)
-    train_opacity = np.stack(teacher_views.opacities)
+
+    def render_teacher() -> TeacherResult:
+        t0 = time.perf_counter()
+        views = evaluate.render_field_views(teacher, train, _progress_printer(log, "teacher", progress), depths=True)
+        return TeacherResult(np.stack(views.images).astype(np.float32), np.stack(views.opacities),
+                             np.stack(views.surface_depths), np.stack(views.fringe_depths),
+                             seconds=time.perf_counter() - t0)
+
+    keys["teacher"] = digest("teacher", fingerprint, train.to_json(), _settings(cfg.teacher))
+    teacher_out = _cached(cache, "teacher", keys["teacher"], render_teacher, TeacherResult.save, TeacherResult.load)
+    targets, train_opacity = teacher_out.images, teacher_out.opacities
     require(bool(np.isfinite(targets).all()), "the field renders NaN or Inf colours; check its parameters")
-    teacher_seconds = stages.done(views=len(train))
-    plan = _training_budget(cfg, teacher_seconds, train, test, field)
+    stages.done(views=len(train), key=keys["teacher"], render_seconds=teacher_out.seconds)
+    keys["plan"] = digest("plan", keys["teacher"], test.to_json(), _settings(cfg.train, ("checkpoint_every_s",)),
+                          _settings(cfg.texture), _settings(cfg.eval))
+    plan = _cached(cache, "plan", keys["plan"],
+                   lambda: _training_budget(cfg, teacher_out.seconds, train, test, field),
+                   lambda p, folder: (folder / "plan.json").write_text(json.dumps(p)),
+                   lambda folder: json.loads((folder / "plan.json").read_text()))
 
     # 3. geometry -----------------------------------------------------------------------------------
     stages.start("geometry", f"marching cubes at {cfg.geometry.grid_resolution}, decimation to "
@@ -390,17 +455,28 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
 
     auto_res = cfg.texture.resolution == 0
     enclose = _resolve_fringe(field, cfg, train_opacity, left_out)
-    mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
-                        face_budget=cfg.geometry.face_budget,
-                        texture_resolution=min(1024, cfg.texture.max_resolution) if auto_res else cfg.texture.resolution,
-                        unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen,
-                        density_level=getattr(field, "surface_level", None),
-                        choose_resolution=by_texel_density if auto_res else None,
-                        cull_margin_deg=cfg.geometry.cull_margin_deg,
-                        field_opacity=train_opacity if enclose else None,
-                        field_depth=(np.stack(teacher_views.surface_depths), np.stack(teacher_views.fringe_depths),
-                                     train_opacity),
-                        core_level=cfg.geometry.core_level)
+
+    def extract() -> GeometryResult:
+        mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
+                            face_budget=cfg.geometry.face_budget,
+                            texture_resolution=(min(1024, cfg.texture.max_resolution) if auto_res
+                                                else cfg.texture.resolution),
+                            unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen,
+                            density_level=getattr(field, "surface_level", None),
+                            choose_resolution=by_texel_density if auto_res else None,
+                            cull_margin_deg=cfg.geometry.cull_margin_deg,
+                            field_opacity=train_opacity if enclose else None,
+                            field_depth=(teacher_out.surface_depths, teacher_out.fringe_depths, train_opacity),
+                            core_level=cfg.geometry.core_level)
+        return GeometryResult(mesh, dict(density))
+
+    # the atlas side depends on the training plan only when it is chosen automatically
+    keys["geometry"] = digest("geometry", keys["teacher"], _settings(cfg.geometry, ("cull_back_faces",)),
+                              cfg.texture.resolution, cfg.texture.max_resolution, enclose,
+                              [plan["max_steps"], plan["samples_per_step"]] if auto_res else None)
+    geometry = _cached(cache, "geometry", keys["geometry"], extract, GeometryResult.save, GeometryResult.load)
+    mesh = geometry.mesh
+    density.update(geometry.density)
     tex_res = int(mesh.stats["uv_resolution"])
     charts = int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
@@ -427,7 +503,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     use_viewdir, view_spread = _resolve_view_dependence(field, mesh, cfg, left_out, fringe_shell=use_facing)
     core_viewdir = _resolve_core_view_dependence(field, mesh, cfg, use_viewdir, left_out)
     _plan_steps(plan, mesh, tex_res, left_out)
-    stages.done(**{k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))})
+    stages.done(key=keys["geometry"], **{k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))})
 
     # 4. gbuffer ------------------------------------------------------------------------------------
     stages.start("gbuffer", f"rasterizing {mesh.num_faces} faces for {len(train)} views (OpenGL)")
@@ -435,7 +511,11 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     origin = 0.5 * (aabb64[0] + aabb64[1])            # float64: GL and training work relative to it
     local_mesh = MeshData((mesh.vertices.astype(np.float64) - origin).astype(np.float32), mesh.faces, mesh.uvs,
                           mesh.stats, core_faces=mesh.core_faces)
-    gbuffer = rasterize_gbuffer(local_mesh, shift_cameras(train, origin), cull_back_faces=cfg.geometry.cull_back_faces)
+    keys["gbuffer"] = digest("gbuffer", keys["geometry"], train.to_json(), cfg.geometry.cull_back_faces)
+    gbuffer = _cached(cache, "gbuffer", keys["gbuffer"],
+                      lambda: rasterize_gbuffer(local_mesh, shift_cameras(train, origin),
+                                                cull_back_faces=cfg.geometry.cull_back_faces),
+                      save_gbuffer, load_gbuffer)
     dirs = view_inputs(np.stack([train.rays(i)[1].numpy() for i in range(len(train))]), gbuffer.face_id,
                        gbuffer.normal, use_facing, local_mesh.core_faces)
     use_skybox, sky_reason = _resolve_skyboxes(field, cfg, gbuffer, left_out)
@@ -450,7 +530,8 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         bg = torch.as_tensor(targets[missed].mean(axis=0) if missed.any() else np.zeros(3), dtype=torch.float32)
     else:
         bg = decisions.background_color(field)
-    stages.done(coverage=float(gbuffer.coverage.mean()), skyboxes=use_skybox, skybox_reason=sky_reason)
+    stages.done(key=keys["gbuffer"], coverage=float(gbuffer.coverage.mean()), skyboxes=use_skybox,
+                skybox_reason=sky_reason)
 
     # 5. distill ------------------------------------------------------------------------------------
     t = cfg.texture
@@ -462,14 +543,31 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                                hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir,
                                use_facing=use_facing, mesh_layers=len(local_mesh.layers()),
                                core_viewdir=core_viewdir)
-    train_log = fit(model, gbuffer.uv, gbuffer.coverage, dirs, targets, steps=plan["steps"],
-                    lr=cfg.train.lr, batch_patches=cfg.train.batch_patches, patch=cfg.train.patch,
-                    ssim_weight=cfg.train.ssim_weight, vq_warmup=cfg.train.vq_warmup,
-                    time_budget_s=plan["time_budget_s"],
-                    progress=progress, seed=cfg.train.seed, skybox=skybox,
-                    origins=sky_origins if skybox is not None else None)
-    train_history = list(train_log.entries)
-    stages.done(**{k: v for k, v in train_log.as_dict().items() if k != "entries"})
+    keys["distill"] = digest("distill", keys["gbuffer"], keys["plan"], plan["steps"], plan["time_budget_s"],
+                             _settings(cfg.texture), _settings(cfg.train, ("checkpoint_every_s",)),
+                             _settings(cfg.skybox), use_viewdir, use_facing, core_viewdir, use_skybox,
+                             sky_layers.to_json() if use_skybox else None, bg)
+    checkpoint = (TrainCheckpoint(cache.work / "checkpoints" / f"distill-{keys['distill']}.pt", keys["distill"],
+                                  every_s=cfg.train.checkpoint_every_s, log=log) if cache is not None else None)
+
+    def train_model() -> TrainedModel:
+        train_log = fit(model, gbuffer.uv, gbuffer.coverage, dirs, targets, steps=plan["steps"],
+                        lr=cfg.train.lr, batch_patches=cfg.train.batch_patches, patch=cfg.train.patch,
+                        ssim_weight=cfg.train.ssim_weight, vq_warmup=cfg.train.vq_warmup,
+                        time_budget_s=plan["time_budget_s"],
+                        progress=progress, seed=cfg.train.seed, skybox=skybox,
+                        origins=sky_origins if skybox is not None else None, checkpoint=checkpoint)
+        if train_log.resumed_from_step:
+            log(f"distill: continued from the checkpoint at step {train_log.resumed_from_step}")
+        return TrainedModel.of(model, skybox, train_log.as_dict())
+
+    trained = _cached(cache, "distill", keys["distill"], train_model, TrainedModel.save, TrainedModel.load)
+    trained.load_into(model, skybox)
+    if checkpoint is not None:
+        checkpoint.remove()
+    train_summary = {k: v for k, v in trained.log.items() if k != "entries"}
+    train_history = list(trained.log["entries"])
+    stages.done(key=keys["distill"], **train_summary)
 
     # 6. bake ---------------------------------------------------------------------------------------
     stages.start("bake", "quantized features -> textures, MLP -> GLSL")
@@ -497,7 +595,12 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
 
     # 7. evaluate -----------------------------------------------------------------------------------
     stages.start("evaluate", f"{len(test)} held-out views at {test.width}x{test.height}: field vs bundle")
-    held_out = evaluate.render_field_views(teacher, test, _progress_printer(log, "field (held-out)", progress))
+    def render_held_out() -> FieldViews:
+        views = evaluate.render_field_views(teacher, test, _progress_printer(log, "field (held-out)", progress))
+        return FieldViews(views.images, views.opacities, views.seconds)
+
+    keys["field_views"] = digest("field_views", fingerprint, test.to_json(), _settings(cfg.teacher))
+    held_out = _cached(cache, "field_views", keys["field_views"], render_held_out, FieldViews.save, FieldViews.load)
     field_images, field_opacities, field_seconds = held_out.images, held_out.opacities, held_out.seconds
     player = BundleRenderer(bundle)
     bundle_images = [player.render(test, i) for i in range(len(test))]
@@ -563,7 +666,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                             "core": use_viewdir if core_viewdir is None else core_viewdir},
         "skybox": ({"used": True, "reason": sky_reason, **skybox.layers.to_json(),
                     "num_codes": int(bundle.manifest["skybox"]["num_codes"]),
-                    "touched_fraction": train_log.sky_touched_fraction}
+                    "touched_fraction": trained.log["sky_touched_fraction"]}
                    if skybox is not None else {"used": False, "reason": sky_reason}),
         "ablation": ablation,
         "extrapolation": extrapolation,
@@ -576,12 +679,21 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
         "training_plan": plan,
         "stability": stability,
         "train_log": train_history,
-        "train_summary": {k: v for k, v in train_log.as_dict().items() if k != "entries"},
+        "train_summary": train_summary,
         "views": {"train": len(train), "test": len(test),
                   "train_resolution": [train.width, train.height]},
         "teacher_steps": cfg.teacher.num_steps,
         "config": cfg.to_dict(),
     }
+    rep["resumed"] = {"stages": list(cache.reused) if cache is not None else [],
+                      "from_step": trained.log.get("resumed_from_step")}
+    if cache is not None:
+        cache.prune(keys)
+        rep["work_area"] = {"path": "work", "kept": keep_work, "bytes": cache.nbytes(), "keys": keys}
+        if rep["resumed"]["stages"] or rep["resumed"]["from_step"]:
+            log("resumed: reused " + (", ".join(rep["resumed"]["stages"]) or "no stored stage")
+                + (f"; training continued from step {rep['resumed']['from_step']}" if rep["resumed"]["from_step"]
+                   else ""))
     rep["distill_seconds"] = time.perf_counter() - t_start
     if root is not None:
         report_mod.write_run_outputs(root, rep, field_images, bundle_images, extra_views, flip_maps)

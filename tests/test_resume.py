@@ -1,0 +1,100 @@
+"""Resumable, reproducible runs end to end, through the command line in subprocesses: a run killed with
+SIGKILL during distillation finishes when the same command runs again, reusing the teacher and the geometry
+and continuing training from its checkpoint; two fresh runs with the same seed write byte-identical bundles."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from neuras_distill.playback.context import gl_available
+
+GL_OK, GL_REASON = gl_available()
+pytestmark = [pytest.mark.gl, pytest.mark.skipif(not GL_OK, reason=f"no OpenGL context: {GL_REASON}")]
+
+#: Small enough for the suite, long enough in training (a few seconds) to be killed in it.
+CONFIG = """
+[cameras]
+num_views = 12
+width = 96
+height = 96
+[train]
+steps = 1500
+checkpoint_every_s = 0.2
+[texture]
+resolution = 128
+num_codes = 128
+[eval]
+width = 128
+fps_frames = 5
+"""
+
+
+def _command(out, config):
+    return [sys.executable, "-m", "neuras_distill.cli", "from-synthetic", "sphere", "--preset", "fast",
+            "--config", str(config), "--out", str(out)]
+
+
+def _run(out, config):
+    result = subprocess.run(_command(out, config), capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return result
+
+
+def _bundle_digests(out):
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted((out / "bundle").iterdir())}
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("resume")
+    config = root / "small.toml"
+    config.write_text(CONFIG)
+    _run(root / "whole", config)
+    return root, config
+
+
+def test_two_fresh_runs_with_the_same_seed_write_identical_bundles(runs):
+    root, config = runs
+    _run(root / "again", config)
+    first, second = _bundle_digests(root / "whole"), _bundle_digests(root / "again")
+    assert len(first) >= 6 and first == second
+
+
+def test_a_run_killed_during_distillation_resumes_and_loses_nothing(runs):
+    root, config = runs
+    out = root / "killed"
+    partial = root / ".killed.partial"
+    proc = subprocess.Popen(_command(out, config), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 240
+    try:
+        while not list((partial / "work" / "checkpoints").glob("distill-*.pt")):
+            assert proc.poll() is None, "the run ended before it wrote a training checkpoint"
+            assert time.monotonic() < deadline, "no training checkpoint within 240 s"
+            time.sleep(0.05)
+        time.sleep(0.3)                                     # a little further into the training
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    assert not out.exists() and partial.is_dir()
+
+    result = _run(out, config)
+    report = json.loads((out / "report.json").read_text())
+    resumed = report["resumed"]
+    assert {"teacher", "plan", "geometry", "gbuffer"} <= set(resumed["stages"]) and "distill" not in resumed["stages"]
+    assert resumed["from_step"] and 0 < resumed["from_step"] < 1500
+    assert "resumed: reused teacher" in result.stderr and f"from step {resumed['from_step']}" in result.stderr
+    whole = json.loads((root / "whole" / "report.json").read_text())
+    assert abs(report["psnr"] - whole["psnr"]) <= 0.2, (report["psnr"], whole["psnr"])
+    assert report["train_summary"]["steps"] == whole["train_summary"]["steps"] == 1500
+    leftovers = [p.name for p in root.iterdir() if p.name.startswith(".")]
+    assert leftovers == [], leftovers
+    assert (out / "work").is_dir() and report["work_area"]["bytes"] > 0
+    assert not list((out / "work").glob("checkpoints/*")) and not list((out / "work").rglob(".*tmp*"))
