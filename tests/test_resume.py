@@ -98,3 +98,41 @@ def test_a_run_killed_during_distillation_resumes_and_loses_nothing(runs):
     assert leftovers == [], leftovers
     assert (out / "work").is_dir() and report["work_area"]["bytes"] > 0
     assert not list((out / "work").glob("checkpoints/*")) and not list((out / "work").rglob(".*tmp*"))
+
+
+def test_a_changed_setting_recomputes_exactly_the_stages_downstream_of_it(tmp_path):
+    """In process, into one run folder: the same settings reuse everything; more steps re-train (the surface
+    stays, the atlas side may follow the budget); another face budget re-meshes, the teachers stay."""
+    import torch
+
+    import neuras_distill as nd
+    from neuras_distill.fields.analytic import SphereSDF
+
+    field = SphereSDF(center=(0.0, 0.0, 0.0), radius=0.5)
+    cams = field.default_cameras(10, 96, 96)
+    old = torch.get_num_threads()
+    torch.set_num_threads(2)
+
+    def run(**overrides):
+        cfg = nd.load_config("fast", overrides={"eval": {"width": 128, "fps_frames": 3},
+                                                "texture": {"num_codes": 128, "resolution": 0, "max_resolution": 256},
+                                                **overrides})
+        return nd.distill(field, cams, cfg, out=tmp_path / "run", progress=False, log=lambda m: None).report
+
+    try:
+        first = run(train={"steps": 200})
+        same = run(train={"steps": 200})
+        longer = run(train={"steps": 300})
+        coarser = run(train={"steps": 300}, geometry={"face_budget": 3000})
+    finally:
+        torch.set_num_threads(old)
+    assert first["resumed"]["stages"] == []
+    assert same["resumed"]["stages"] == ["teacher", "plan", "surface", "geometry", "gbuffer", "distill", "field_views"]
+    assert same["psnr"] == first["psnr"]
+    assert {"teacher", "surface", "field_views"} <= set(longer["resumed"]["stages"])
+    assert "distill" not in longer["resumed"]["stages"] and longer["train_summary"]["steps"] == 300
+    assert set(coarser["resumed"]["stages"]) == {"teacher", "plan", "field_views"}
+    assert coarser["mesh_faces"] <= 3000 < first["mesh_faces"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    kept = {d.name: sorted(k.name for k in d.iterdir()) for d in (tmp_path / "run" / "work").iterdir()}
+    assert all(len(v) == 1 for v in kept.values()), kept          # the work area holds this run's stages only

@@ -8,6 +8,7 @@ module (grid, marching, cleanup, visibility, unwrap). Prints nothing.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -37,12 +38,57 @@ def shell_budget(face_budget: int) -> int:
 FUSION_TRUNCATION_VOXELS = 6.0
 
 
+@dataclass
+class Surface:
+    """The extracted surface before its final unwrap (:func:`extract_surface`).
+
+    Attributes:
+        mesh: the cleaned, decimated, culled mesh (world coordinates; one layer, or two with ``core_faces``)
+            and the stats of every step so far.
+        layout: (V, 3) positions xatlas lays the charts out from (a two-layer mesh's shell shrunk by
+            ``SHELL_TEXEL_SCALE``), or None (the vertices).
+        trial: ``mesh`` unwrapped at ``trial_resolution`` (the texel-density choice of the atlas side measures
+            its UV area; it is the final mesh when that side is chosen).
+    """
+
+    mesh: MeshData
+    layout: np.ndarray | None
+    trial: MeshData
+    trial_resolution: int
+
+    def save(self, folder) -> None:
+        import json
+
+        self.mesh.save_npz(folder / "surface.npz")
+        self.trial.save_npz(folder / "trial.npz")
+        if self.layout is not None:
+            np.save(folder / "layout.npy", self.layout, allow_pickle=False)
+        (folder / "surface.json").write_text(json.dumps(
+            {"stats": self.mesh.stats, "trial_stats": self.trial.stats, "trial_resolution": self.trial_resolution},
+            default=_json_value))
+
+    @classmethod
+    def load(cls, folder) -> "Surface":
+        import json
+
+        info = json.loads((folder / "surface.json").read_text())
+        mesh, trial = MeshData.load_npz(folder / "surface.npz"), MeshData.load_npz(folder / "trial.npz")
+        mesh.stats, trial.stats = info["stats"], info["trial_stats"]
+        layout = np.load(folder / "layout.npy", allow_pickle=False) if (folder / "layout.npy").exists() else None
+        return cls(mesh, layout, trial, int(info["trial_resolution"]))
+
+
+def _json_value(o):
+    return o.item() if isinstance(o, np.generic) else str(o)
+
+
 def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
                  texture_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                  density_level: float | None = None, max_unwrap_faces: int = 200_000,
                  choose_resolution=None, cull_margin_deg: float = 15.0, field_opacity=None,
                  field_depth=None, core_level: str = "surface") -> MeshData:
-    """Extract, simplify, cull and unwrap the surface of ``field``.
+    """Extract, simplify, cull and unwrap the surface of ``field``: :func:`extract_surface`, then
+    :func:`unwrap_surface` at ``choose_resolution(surface.trial)`` when given, else at ``texture_resolution``.
 
     Args:
         field: Field (kind, aabb, geometry).
@@ -80,6 +126,26 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
         BadInputError: no surface in the box, bad budget, cameras seeing nothing, unwrap failure.
     """
     t_start = time.perf_counter()
+    surface = extract_surface(field, train_cameras, grid_resolution=grid_resolution, face_budget=face_budget,
+                              trial_resolution=texture_resolution, unwrap_timeout_s=unwrap_timeout_s,
+                              cull_unseen=cull_unseen, density_level=density_level,
+                              max_unwrap_faces=max_unwrap_faces, cull_margin_deg=cull_margin_deg,
+                              field_opacity=field_opacity, field_depth=field_depth, core_level=core_level)
+    side = int(choose_resolution(surface.trial)) if choose_resolution is not None else int(texture_resolution)
+    mesh = unwrap_surface(surface, side, unwrap_timeout_s=unwrap_timeout_s, max_unwrap_faces=max_unwrap_faces)
+    mesh.stats["seconds_total"] = time.perf_counter() - t_start
+    return mesh
+
+
+def extract_surface(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
+                    trial_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
+                    density_level: float | None = None, max_unwrap_faces: int = 200_000,
+                    cull_margin_deg: float = 15.0, field_opacity=None, field_depth=None,
+                    core_level: str = "surface") -> Surface:
+    """Sample, mesh, clean, decimate and cull the surface of ``field``, and unwrap it once at
+    ``trial_resolution`` (arguments as :func:`extract_mesh`). A density field's level set that xatlas cannot
+    unwrap is meshed again from the fused depths (``field_depth``)."""
+    t_start = time.perf_counter()
     fringe_check = None
     if field_opacity is not None:
         def fringe_check(candidate: MeshData) -> float:
@@ -95,33 +161,53 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
             return fused_depth_sdf(spec.origin, spec.spacing, spec.shape, train_cameras, depths, opacities,
                                    truncation=FUSION_TRUNCATION_VOXELS * float(spec.spacing.max()), opaque=opaque)
 
-    def attempt(depth_fusion) -> MeshData:
+    def attempt(depth_fusion) -> Surface:
         timings: dict = {}
         t = time.perf_counter()
         mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check,
                                     depth_fusion=depth_fusion, termination=termination)
         timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling (and the fusion)
-        return _finish(mesh, train_cameras, timings, face_budget=face_budget, cull_unseen=cull_unseen,
-                       cull_margin_deg=cull_margin_deg, texture_resolution=texture_resolution,
-                       choose_resolution=choose_resolution, unwrap_timeout_s=unwrap_timeout_s,
-                       max_unwrap_faces=max_unwrap_faces)
+        mesh, layout = _simplify(mesh, train_cameras, timings, face_budget=face_budget, cull_unseen=cull_unseen,
+                                 cull_margin_deg=cull_margin_deg)
+        surface = Surface(mesh, layout, mesh, int(trial_resolution))
+        surface.trial = unwrap_surface(surface, trial_resolution, unwrap_timeout_s=unwrap_timeout_s,
+                                       max_unwrap_faces=max_unwrap_faces)
+        return surface
 
     try:
-        mesh = attempt(None)
+        surface = attempt(None)
     except UnwrapFailed as failure:
         if fusion is None:
             raise
         # the level set is a trained NeRF's noise (tunnels, pockets): mesh what the cameras saw instead
-        mesh = attempt(fusion)
-        mesh.stats["level_set_unwrap_failure"] = str(failure)
-    mesh.stats["seconds_total"] = time.perf_counter() - t_start
+        surface = attempt(fusion)
+        surface.mesh.stats["level_set_unwrap_failure"] = str(failure)
+        surface.trial.stats["level_set_unwrap_failure"] = str(failure)
+    surface.mesh.stats["seconds_surface"] = time.perf_counter() - t_start
+    return surface
+
+
+def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float = 120.0,
+                   max_unwrap_faces: int = 200_000) -> MeshData:
+    """``surface.mesh`` unwrapped for a ``resolution`` x ``resolution`` atlas (``surface.trial`` when that is
+    its side), with the surface's stats and ``faces_final``, ``vertices_final``, ``chart_count``,
+    ``seconds_unwrap``."""
+    if surface.trial is not surface.mesh and int(resolution) == int(surface.trial_resolution):
+        return surface.trial
+    t = time.perf_counter()
+    mesh = unwrap(surface.mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=int(resolution),
+                  layout_vertices=surface.layout)
+    stats = {k: v for k, v in surface.mesh.stats.items() if not k.startswith("uv_")}
+    mesh.stats = {**stats, **mesh.stats}
+    mesh.stats.update(faces_final=mesh.num_faces, vertices_final=mesh.num_vertices, chart_count=mesh.stats.get("uv_charts"),
+                      seconds_unwrap=time.perf_counter() - t)
     return mesh
 
 
-def _finish(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int, cull_unseen: bool,
-            cull_margin_deg: float, texture_resolution: int, choose_resolution, unwrap_timeout_s: float,
-            max_unwrap_faces: int) -> MeshData:
-    """Clean, decimate, cull (each layer on its own) and unwrap a marching-cubes mesh (:func:`extract_mesh`)."""
+def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int, cull_unseen: bool,
+              cull_margin_deg: float) -> tuple[MeshData, np.ndarray | None]:
+    """Clean, decimate and cull (each layer on its own) a marching-cubes mesh. Returns the mesh (with the
+    steps' stats) and the positions its charts are laid out from (None for one layer)."""
     n_mc = mesh.num_faces
     layers = mesh.layers()
     budgets = [face_budget] if len(layers) == 1 else [face_budget - shell_budget(face_budget),
@@ -154,24 +240,10 @@ def _finish(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int, c
         mesh = MeshData.two_layers(core, shell, stats)
         centre = shell.vertices.astype(np.float64).mean(axis=0)
         layout = np.concatenate([core.vertices, centre + SHELL_TEXEL_SCALE * (shell.vertices - centre)])
-
-    t = time.perf_counter()
-    unwrapped = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=texture_resolution,
-                       layout_vertices=layout)
-    if choose_resolution is not None:
-        chosen = int(choose_resolution(unwrapped))
-        if chosen != int(texture_resolution):
-            unwrapped = unwrap(mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=chosen,
-                               layout_vertices=layout)
-    mesh = unwrapped
-    timings["unwrap"] = time.perf_counter() - t
-
     mesh.stats.update(faces_marching_cubes=n_mc, faces_after_clean=counts["clean"],
                       faces_after_decimation=counts["dec"], culled_faces=counts["culled"],
-                      faces_final=mesh.num_faces, vertices_final=mesh.num_vertices,
-                      chart_count=mesh.stats.get("uv_charts"),
                       **{f"seconds_{k}": v for k, v in timings.items()})
-    return mesh
+    return mesh, layout
 
 
-__all__ = ["extract_mesh"]
+__all__ = ["Surface", "extract_mesh", "extract_surface", "unwrap_surface"]

@@ -383,7 +383,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     from ..bake.bundle import bake
     from ..neural.model import NeuralTextureModel, view_inputs
     from ..neural.train import fit
-    from ..geometry.extract import extract_mesh
+    from ..geometry.extract import Surface, extract_surface, unwrap_surface
     from ..playback.context import gl_info
     from ..geometry.mesh import MeshData
     from ..neural.skybox import SkyboxModel, plan_layers
@@ -456,27 +456,30 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     auto_res = cfg.texture.resolution == 0
     enclose = _resolve_fringe(field, cfg, train_opacity, left_out)
 
-    def extract() -> GeometryResult:
-        mesh = extract_mesh(field, train, grid_resolution=cfg.geometry.grid_resolution,
-                            face_budget=cfg.geometry.face_budget,
-                            texture_resolution=(min(1024, cfg.texture.max_resolution) if auto_res
-                                                else cfg.texture.resolution),
-                            unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen,
-                            density_level=getattr(field, "surface_level", None),
-                            choose_resolution=by_texel_density if auto_res else None,
-                            cull_margin_deg=cfg.geometry.cull_margin_deg,
-                            field_opacity=train_opacity if enclose else None,
-                            field_depth=(teacher_out.surface_depths, teacher_out.fringe_depths, train_opacity),
-                            core_level=cfg.geometry.core_level)
-        return GeometryResult(mesh, dict(density))
+    trial_side = min(1024, cfg.texture.max_resolution) if auto_res else cfg.texture.resolution
 
-    # the atlas side depends on the training plan only when it is chosen automatically
-    keys["geometry"] = digest("geometry", keys["teacher"], _settings(cfg.geometry, ("cull_back_faces",)),
-                              cfg.texture.resolution, cfg.texture.max_resolution, enclose,
-                              [plan["max_steps"], plan["samples_per_step"]] if auto_res else None)
-    geometry = _cached(cache, "geometry", keys["geometry"], extract, GeometryResult.save, GeometryResult.load)
+    def extract() -> Surface:
+        return extract_surface(field, train, grid_resolution=cfg.geometry.grid_resolution,
+                               face_budget=cfg.geometry.face_budget, trial_resolution=trial_side,
+                               unwrap_timeout_s=cfg.geometry.unwrap_timeout_s, cull_unseen=cfg.geometry.cull_unseen,
+                               density_level=getattr(field, "surface_level", None),
+                               cull_margin_deg=cfg.geometry.cull_margin_deg,
+                               field_opacity=train_opacity if enclose else None,
+                               field_depth=(teacher_out.surface_depths, teacher_out.fringe_depths, train_opacity),
+                               core_level=cfg.geometry.core_level)
+
+    # the surface does not depend on the training plan; the atlas side (chosen from it when automatic) only
+    # changes the final unwrap
+    keys["surface"] = digest("surface", keys["teacher"], _settings(cfg.geometry, ("cull_back_faces",)),
+                             trial_side, enclose)
+    surface = _cached(cache, "surface", keys["surface"], extract, Surface.save, Surface.load)
+    side = by_texel_density(surface.trial) if auto_res else cfg.texture.resolution
+    keys["geometry"] = digest("geometry", keys["surface"], side)
+    geometry = _cached(cache, "geometry", keys["geometry"],
+                       lambda: GeometryResult(unwrap_surface(surface, side, unwrap_timeout_s=cfg.geometry.unwrap_timeout_s),
+                                              dict(density)),
+                       GeometryResult.save, GeometryResult.load)
     mesh = geometry.mesh
-    density.update(geometry.density)
     tex_res = int(mesh.stats["uv_resolution"])
     charts = int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
