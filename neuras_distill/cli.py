@@ -152,7 +152,7 @@ def _run_scene(args, name: str) -> int:
     check_output_folder(out.resolve())  # fail before any work
     field = make_scene(name, kind=args.kind)
     distill(field, None, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
-            fresh=args.fresh, keep_work=args.keep_work)
+            fresh=args.fresh, keep_work=args.keep_work, source=_source(args))
     return 0
 
 
@@ -193,7 +193,7 @@ def _run_checkpoint(args, path: str, adapter: str, options: dict) -> int:
         require(callable(getattr(field, "default_cameras", None)),
                 f"{src} stores no cameras; pass --cameras transforms.json")
     distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
-            fresh=args.fresh, keep_work=args.keep_work)
+            fresh=args.fresh, keep_work=args.keep_work, source=_source(args))
     return 0
 
 
@@ -322,8 +322,17 @@ def _export(args) -> int:
     return writer(args)
 
 
+def _source(args) -> dict:
+    """``report["source"]``: this command line and the folder it ran in (relative paths are relative to it)."""
+    import os
+
+    return {"command": ["neuras-distill", *getattr(args, "argv", [])], "cwd": os.getcwd()}
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    args.argv = argv
     from .errors import BadInputError
 
     try:

@@ -92,7 +92,10 @@ def test_a_run_killed_during_distillation_resumes_and_loses_nothing(runs):
     assert resumed["from_step"] and 0 < resumed["from_step"] < 1500
     assert "resumed: reused teacher" in result.stderr and f"from step {resumed['from_step']}" in result.stderr
     whole = json.loads((root / "whole" / "report.json").read_text())
+    print(f"killed at step {resumed['from_step']} of 1500; resumed PSNR {report['psnr']:.3f} dB, uninterrupted "
+          f"{whole['psnr']:.3f} dB; work area {report['work_area']['bytes'] / 1e6:.1f} MB")
     assert abs(report["psnr"] - whole["psnr"]) <= 0.2, (report["psnr"], whole["psnr"])
+    assert report["source"]["command"][:3] == ["neuras-distill", "from-synthetic", "sphere"]
     assert report["train_summary"]["steps"] == whole["train_summary"]["steps"] == 1500
     leftovers = [p.name for p in root.iterdir() if p.name.startswith(".")]
     assert leftovers == [], leftovers

@@ -275,7 +275,7 @@ def _resolve_core_view_dependence(field, mesh, cfg: DistillConfig, use_viewdir: 
 
 def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict | None = None,
             out: str | Path | None = None, *, log=None, progress: bool = True, fresh: bool = False,
-            keep_work: bool = True) -> DistillResult:
+            keep_work: bool = True, source: dict | None = None) -> DistillResult:
     """Distill ``field`` into a bundle that OpenGL plays, and measure it against the field.
 
     Args:
@@ -289,6 +289,9 @@ def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict 
         fresh: ignore every stored stage (they are recomputed and stored again).
         keep_work: keep the work area (``<out>/work``: stored stages, G-buffers) after success, for the next
             run into the same folder; False removes it.
+        source: where the field came from, stored as ``report["source"]`` (the command line records its
+            arguments and working folder, so the run can be repeated or benchmarked from its folder); default:
+            the field's class.
     Returns:
         DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``.
     Raises:
@@ -304,13 +307,14 @@ def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict 
     else:
         cfg = config.validate()
     check_field(field)
+    source = source or {"python": f"{type(field).__module__}.{type(field).__qualname__}"}
     cameras = _pick_cameras(field, cameras, cfg)
     stability = _check_stability(field, cameras, cfg, log)
     torch.manual_seed(cfg.train.seed)
     np.random.seed(cfg.train.seed)
 
     if out is None:
-        return _run(field, cameras, cfg, None, log, progress, stability)
+        return _run(field, cameras, cfg, None, log, progress, stability, source=source)
     folder = RunFolder(out, keep_work=keep_work)
     with folder as tmp:
         if folder.resumed_folder:
@@ -319,7 +323,8 @@ def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict 
             log(f"removed {path.name} (left by a killed run of an earlier version)")
         cache = StageCache(folder.work, [folder.previous_work], fresh=fresh, log=log)
         try:
-            result = _run(field, cameras, cfg, tmp, log, progress, stability, cache=cache, keep_work=keep_work)
+            result = _run(field, cameras, cfg, tmp, log, progress, stability, cache=cache, keep_work=keep_work,
+                          source=source)
         except BaseException:
             if folder.work.is_dir() and any(folder.work.glob("*/*/done.json")):
                 log(f"finished stages are kept in {tmp}; the same command reuses them (--fresh ignores them)")
@@ -379,7 +384,8 @@ def _pick_cameras(field, cameras, cfg: DistillConfig) -> Cameras:
 
 
 def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool,
-         stability: dict | None = None, cache: StageCache | None = None, keep_work: bool = True) -> DistillResult:
+         stability: dict | None = None, cache: StageCache | None = None, keep_work: bool = True,
+         source: dict | None = None) -> DistillResult:
     from ..bake.bundle import bake
     from ..neural.model import NeuralTextureModel, view_inputs
     from ..neural.train import fit
@@ -687,6 +693,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                   "train_resolution": [train.width, train.height]},
         "teacher_steps": cfg.teacher.num_steps,
         "config": cfg.to_dict(),
+        "source": source,
     }
     rep["resumed"] = {"stages": list(cache.reused) if cache is not None else [],
                       "from_step": trained.log.get("resumed_from_step")}
