@@ -185,6 +185,10 @@ class DistillConfig:
         g, t, tr = self.geometry, self.texture, self.train
         require(g.face_budget >= 4, f"face budget must be at least 4 faces, got {g.face_budget}; "
                                     "pass e.g. --face-budget 40000")
+        from .geometry.unwrap import MAX_UNWRAP_FACES
+        require(g.face_budget <= MAX_UNWRAP_FACES,
+                f"face budget {g.face_budget} is more than the UV unwrap handles ({MAX_UNWRAP_FACES} faces); "
+                f"pass --face-budget {MAX_UNWRAP_FACES} or less")
         require(g.grid_resolution >= 16, f"grid resolution must be at least 16, got {g.grid_resolution}")
         require(0.0 <= g.cull_margin_deg < 90.0, f"cull_margin_deg must be in 0..90 degrees, got {g.cull_margin_deg}")
         require(self.texture.soft_silhouettes in ("auto", "on", "off"),

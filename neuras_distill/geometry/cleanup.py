@@ -217,7 +217,12 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
                      decimate_optimal_placement=None, decimate_budget_reached=True,
                      decimate_seconds=time.perf_counter() - t0)
         return MeshData(mesh.vertices.copy(), mesh.faces.copy(), None, stats)
-    extent = v0.max(axis=0) - v0.min(axis=0)
+    # pymeshlab's quadric collapse has fixed epsilons: a millimetre mesh collapses inwards (|r/R - 1| = 0.87
+    # measured at R = 1e-3); it works on the mesh centred and scaled to unit size, and the result is scaled back
+    lo, hi = v0.min(axis=0), v0.max(axis=0)
+    centre, size = 0.5 * (lo + hi), float((hi - lo).max()) or 1.0
+    v0 = (v0 - centre) / size
+    extent = hi - lo
     auto = optimal_placement is None
     optimal = bool(extent.min() >= 0.01 * extent.max()) if auto else bool(optimal_placement)
     watertight = is_watertight(f0)
@@ -239,7 +244,7 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
     stats.update(decimate_faces_in=int(f0.shape[0]), decimate_faces_out=int(f.shape[0]), decimate_passes=passes,
                  decimate_optimal_placement=optimal, decimate_budget_reached=bool(f.shape[0] <= budget),
                  decimate_seconds=time.perf_counter() - t0)
-    return MeshData(v.astype(np.float32), f.astype(np.int32), None, stats)
+    return MeshData((v * size + centre).astype(np.float32), f.astype(np.int32), None, stats)
 
 
 __all__ = ["clean_mesh", "decimate", "smooth_rough", "ROUGH_FOLDED_FRACTION", "face_components", "is_watertight"]

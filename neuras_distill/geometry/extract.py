@@ -18,7 +18,7 @@ from .depth_fusion import fused_depth_sdf
 from .cleanup import clean_mesh, decimate, smooth_rough
 from .marching import marching_cubes_field
 from .mesh import MeshData
-from .unwrap import UnwrapFailed, unwrap
+from .unwrap import MAX_UNWRAP_FACES, UnwrapFailed, unwrap
 from .visibility import cull_unseen_faces, missed_opaque_fraction
 
 #: A two-layer mesh's shell (``MeshData.core_faces``) gets this share of the face budget (it only draws a
@@ -84,7 +84,7 @@ def _json_value(o):
 
 def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
                  texture_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
-                 density_level: float | None = None, max_unwrap_faces: int = 200_000,
+                 density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
                  choose_resolution=None, cull_margin_deg: float = 15.0, field_opacity=None,
                  field_depth=None, core_level: str = "surface") -> MeshData:
     """Extract, simplify, cull and unwrap the surface of ``field``: :func:`extract_surface`, then
@@ -139,7 +139,7 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
 
 def extract_surface(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
                     trial_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
-                    density_level: float | None = None, max_unwrap_faces: int = 200_000,
+                    density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
                     cull_margin_deg: float = 15.0, field_opacity=None, field_depth=None,
                     core_level: str = "surface") -> Surface:
     """Sample, mesh, clean, decimate and cull the surface of ``field``, and unwrap it once at
@@ -188,7 +188,7 @@ def extract_surface(field, train_cameras, *, grid_resolution: int = 192, face_bu
 
 
 def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float = 120.0,
-                   max_unwrap_faces: int = 200_000) -> MeshData:
+                   max_unwrap_faces: int = MAX_UNWRAP_FACES) -> MeshData:
     """``surface.mesh`` unwrapped for a ``resolution`` x ``resolution`` atlas (``surface.trial`` when that is
     its side), with the surface's stats and ``faces_final``, ``vertices_final``, ``chart_count``,
     ``seconds_unwrap``."""

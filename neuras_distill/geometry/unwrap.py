@@ -5,7 +5,8 @@ segfault cannot be caught in-process. So :func:`unwrap` runs it in a ``spawn`` c
 process holding torch/OpenMP threads) and waits with a time limit. On a crash or timeout it retries once with a
 tiny deterministic vertex jitter (5% of the mean edge length, seed 0; only the positions xatlas sees are
 jittered, the returned geometry is exact); when that also fails it raises :class:`BadInputError` asking for a
-smaller face budget. Meshes above ``max_faces`` are refused before starting.
+smaller face budget. Meshes above ``max_faces`` are refused before starting. xatlas sees the mesh centred and
+scaled to unit size (:func:`normalized_layout`): its fixed epsilons fail on millimetre meshes otherwise.
 
 UV convention (checked against xatlas's own chart image, xatlas 0.0.11): xatlas's uv (u, v), divided by the
 atlas width/height, addresses texel column ``u * W`` and row ``v * H`` of its image whose row 0 is v = 0. That is
@@ -135,7 +136,25 @@ def uv_face_areas(uvs: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
 
 
-def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000, resolution: int | None = None,
+#: Largest mesh the unwrap accepts (xatlas's time grows faster than linearly; larger budgets are refused up front).
+MAX_UNWRAP_FACES = 200_000
+
+
+def normalized_layout(positions: np.ndarray) -> np.ndarray:
+    """(V, 3) positions in any world units -> (V, 3) float32 centred on their box and scaled to unit extent.
+
+    xatlas tests areas and lengths against fixed float32 epsilons: a millimetre-sized mesh (face areas near
+    1e-8) comes back as an empty 0 x 0 atlas, and a mesh 1e5 units from the origin loses its low bits. The
+    layout depends only on relative sizes, so xatlas sees the mesh centred (in float64) at unit size.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    extent = float((hi - lo).max())
+    scale = 1.0 / extent if extent > 0 else 1.0
+    return np.ascontiguousarray((positions - 0.5 * (lo + hi)) * scale, dtype=np.float32)
+
+
+def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNWRAP_FACES, resolution: int | None = None,
            padding: int = 3, min_padding: float = 2.0, max_iterations: int = 1,
            layout_vertices: np.ndarray | None = None) -> MeshData:
     """UV-unwrap ``mesh`` into one square atlas.
@@ -173,10 +192,11 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000
     if not np.isfinite(mesh.vertices).all():
         raise BadInputError("the mesh has NaN or Inf vertices; run clean_mesh first")
     t0 = time.perf_counter()
-    vertices = np.ascontiguousarray(mesh.vertices if layout_vertices is None else layout_vertices,
-                                    dtype=np.float32).reshape(-1, 3)
-    if vertices.shape[0] != mesh.num_vertices or not np.isfinite(vertices).all():
+    layout = np.asarray(mesh.vertices if layout_vertices is None else layout_vertices, dtype=np.float64)
+    layout = layout.reshape(-1, 3)
+    if layout.shape[0] != mesh.num_vertices or not np.isfinite(layout).all():
         raise BadInputError("unwrap: layout_vertices must be finite, one row per mesh vertex")
+    vertices = normalized_layout(layout)
     faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
     options = {"resolution": resolution, "padding": int(padding), "min_padding": float(min_padding),
                "max_iterations": int(max_iterations)}
@@ -206,4 +226,4 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = 200_000
     return MeshData(mesh.vertices[vmapping], indices, uv, stats, core_faces=mesh.core_faces)
 
 
-__all__ = ["unwrap", "uv_face_areas", "UnwrapFailed", "CRASH_HOOK_ENV"]
+__all__ = ["unwrap", "uv_face_areas", "UnwrapFailed", "CRASH_HOOK_ENV", "MAX_UNWRAP_FACES"]

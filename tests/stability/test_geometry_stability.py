@@ -104,3 +104,24 @@ def test_decimate_budget_above():
     out = decimate(mesh, mesh.num_faces + 1000)
     assert np.array_equal(out.vertices, mesh.vertices) and np.array_equal(out.faces, mesh.faces)
     assert out.stats["decimate_budget_reached"] is True
+
+
+@S(case="mesh too large for the UV unwrap", family="geometry",
+   reference="BadInputError before xatlas starts (unwrap) and before any work (config), exact messages",
+   tolerance="exact")
+def test_unwrap_refuses_meshes_above_its_limit():
+    import neuras_distill as nd
+    from neuras_distill.geometry.mesh import MeshData
+    from neuras_distill.geometry.unwrap import MAX_UNWRAP_FACES, unwrap
+
+    n = MAX_UNWRAP_FACES + 1
+    strip = np.arange(n + 2)
+    mesh = MeshData(np.random.default_rng(0).random((n + 2, 3)), np.stack([strip[:-2], strip[1:-1], strip[2:]], 1))
+    with pytest.raises(BadInputError, match=rf"^the mesh has {n} faces, more than the UV unwrap handles "
+                                            rf"\({MAX_UNWRAP_FACES}\); lower --face-budget \(e.g. to 100000\)$"):
+        unwrap(mesh)
+    cfg = nd.DistillConfig()
+    cfg.geometry.face_budget = n
+    with pytest.raises(BadInputError, match=rf"^face budget {n} is more than the UV unwrap handles "
+                                            rf"\({MAX_UNWRAP_FACES} faces\); pass --face-budget {MAX_UNWRAP_FACES}"):
+        cfg.validate()
