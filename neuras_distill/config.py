@@ -58,6 +58,12 @@ class GeometryConfig:
     on a sphere, scores ~30 dB at the surface level's radius and ~41 dB at the colour level's), while the
     shell, which then draws the whole fade, is the coarser layer. The core's shader drops the view direction
     when the field's own colour does not depend on it (``pipeline.run._resolve_core_view_dependence``)."""
+    surface: str = "auto"
+    """Where a density field's mesh comes from. "auto": its level set on the marching-cubes grid, meshed again
+    from the surface depths fused over the training views when xatlas cannot unwrap that level set (a trained
+    NeRF's foam interior). "depths": always from the fused depths; the stability check chooses it when parts of
+    the field are thinner than a voxel even at its largest grid (a lattice misses them: the level set is a
+    perforated foam). SDF fields always use their level set."""
     cull_back_faces: bool = True
     """Cull back faces when rasterizing (G-buffers and playback alike): invisible on closed meshes, and
     playback shades half as many fragments."""
@@ -193,6 +199,7 @@ class DistillConfig:
         require(0.0 <= g.cull_margin_deg < 90.0, f"cull_margin_deg must be in 0..90 degrees, got {g.cull_margin_deg}")
         require(self.texture.soft_silhouettes in ("auto", "on", "off"),
                 f"soft_silhouettes must be auto, on or off, got {self.texture.soft_silhouettes!r}")
+        require(g.surface in ("auto", "depths"), f"geometry.surface must be auto or depths, got {g.surface!r}")
         require(g.core_level in ("surface", "colour"),
                 f"core_level must be surface or colour, got {g.core_level!r}")
         require(g.enclose_fringe in ("auto", "on", "off"),

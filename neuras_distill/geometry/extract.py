@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import BadInputError
 from ..render.volume import FRINGE_OPACITY
 from .colour_level import termination_points
 from .depth_fusion import fused_depth_sdf
@@ -141,10 +142,11 @@ def extract_surface(field, train_cameras, *, grid_resolution: int = 192, face_bu
                     trial_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                     density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
                     cull_margin_deg: float = 15.0, field_opacity=None, field_depth=None,
-                    core_level: str = "surface") -> Surface:
+                    core_level: str = "surface", from_depths: bool = False) -> Surface:
     """Sample, mesh, clean, decimate and cull the surface of ``field``, and unwrap it once at
     ``trial_resolution`` (arguments as :func:`extract_mesh`). A density field's level set that xatlas cannot
-    unwrap is meshed again from the fused depths (``field_depth``)."""
+    unwrap is meshed again from the fused depths (``field_depth``); ``from_depths`` meshes the fused depths
+    straight away (parts thinner than a voxel: ``config.GeometryConfig.surface``)."""
     t_start = time.perf_counter()
     fringe_check = None
     if field_opacity is not None:
@@ -174,6 +176,14 @@ def extract_surface(field, train_cameras, *, grid_resolution: int = 192, face_bu
                                        max_unwrap_faces=max_unwrap_faces)
         return surface
 
+    if from_depths:
+        if fusion is None:
+            raise BadInputError("geometry.surface = depths needs a density field and the teacher's surface depths; "
+                                "use geometry.surface = auto")
+        surface = attempt(fusion)
+        surface.mesh.stats["surface_from_depths"] = True
+        surface.mesh.stats["seconds_surface"] = time.perf_counter() - t_start
+        return surface
     try:
         surface = attempt(None)
     except UnwrapFailed as failure:

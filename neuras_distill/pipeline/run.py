@@ -350,7 +350,7 @@ def _check_stability(field, cameras: Cameras, cfg: DistillConfig, log) -> dict:
         section, name = key.split(".", 1)
         part = getattr(cfg, section)
         old = getattr(part, name)
-        if value <= old:
+        if value == old or (not isinstance(value, str) and value <= old):
             continue
         if old != getattr(getattr(defaults, section), name):
             kept[key] = [old, type(old)(value)]
@@ -472,7 +472,7 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
                                cull_margin_deg=cfg.geometry.cull_margin_deg,
                                field_opacity=train_opacity if enclose else None,
                                field_depth=(teacher_out.surface_depths, teacher_out.fringe_depths, train_opacity),
-                               core_level=cfg.geometry.core_level)
+                               core_level=cfg.geometry.core_level, from_depths=cfg.geometry.surface == "depths")
 
     # the surface does not depend on the training plan; the atlas side (chosen from it when automatic) only
     # changes the final unwrap

@@ -309,6 +309,13 @@ def _thin(c: _Ctx) -> Item:
     # a voxel of at most 2/3 of the thinnest chord puts a lattice point inside it (chords overestimate thickness)
     need = int(math.ceil(1.5 * float(c.extent.max()) / thin / 32.0) * 32) + 1
     cap = GRID_CAP
+    if need > cap and c.kind == "density":
+        # a lattice misses most of such a part (the level set is a perforated foam): mesh what the training
+        # views see instead (their surface depths, fused into a smooth SDF), at the configured grid
+        return Item("geometry.thin", "geometry", values, "adapted",
+                    f"parts {thin:.3g} thin, below a voxel even at grid {cap} ({float(c.extent.max()) / (cap - 1):.3g}): "
+                    "geometry.surface set to depths (the mesh is fused from the training views' surface depths; "
+                    "a lattice would leave holes)", {"geometry.surface": "depths"})
     if need > cap:
         return Item("geometry.thin", "geometry", values, "adapted",
                     f"parts {thin:.3g} thin, below a voxel even at grid {cap} ({float(c.extent.max()) / (cap - 1):.3g}): "
