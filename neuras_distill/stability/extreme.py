@@ -8,7 +8,8 @@ Each is a tiny analytic field (Field protocol) that stresses one numerical regim
 * ``solid-1e8``: a cube of density 1e8 (stiff but solid: every step saturates, nothing is skipped);
 * ``steep-sdf``: a sphere SDF scaled by 10 (|∇f| = 10: not a distance);
 * ``km-sphere``: a 500 m sphere (a kilometre-scale scene);
-* ``far-sphere``: a unit sphere 1e5 units from the origin (float32 positions quantised to 0.0078);
+* ``far-sphere``: a unit sphere 1e5 units from the origin (float32 positions quantised to 0.0078: refused);
+* ``far-km-sphere``: a 500 m sphere 1e5 units from the origin (the same quantisation, 1e-5 of its size: fine);
 * ``nan-corner``: a density sphere whose field returns NaN in one corner of the box;
 * ``flipped-sign``: a sphere SDF that is positive inside.
 """
@@ -118,6 +119,7 @@ EXTREME = {
     "steep-sdf": lambda: ScaledSDF(_sphere((0.0, 0.0, 0.0), 0.5, 1000.0), 10.0),
     "km-sphere": lambda: _sphere((0.0, 0.0, 0.0), 500.0, 1.0),
     "far-sphere": lambda: _sphere((1e5, 0.0, 0.0), 0.5, 1000.0),
+    "far-km-sphere": lambda: _sphere((1e5, 0.0, 0.0), 500.0, 1.0),
     "nan-corner": lambda: NaNCorner(),
     "flipped-sign": lambda: ScaledSDF(_sphere((0.0, 0.0, 0.0), 0.5, 1000.0), -1.0),
 }
