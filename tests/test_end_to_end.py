@@ -118,7 +118,10 @@ def test_stiff_field_raises_the_teacher_steps_before_rendering():
     assert stab["verdict"] == "adapted"
     assert stab["applied"]["teacher.num_steps"] == [before, cfg.teacher.num_steps]
     assert cfg.teacher.num_steps >= 1024 > before
-    assert cfg.geometry.grid_resolution == 48 and stab["not_applied"]["geometry.grid_resolution"][1] > 48
+    # thinner than a voxel even at the largest grid: meshed from the teacher's surface depths (session 11), so no
+    # grid is recommended and the chosen one is kept
+    assert stab["applied"]["geometry.surface"] == ["auto", "depths"] and cfg.geometry.surface == "depths"
+    assert cfg.geometry.grid_resolution == 48 and "geometry.grid_resolution" not in stab["not_applied"]
 
 
 def test_field_without_surface_leaves_nothing(tmp_path):

@@ -31,7 +31,7 @@ from scipy import sparse
 from scipy.sparse import csgraph
 
 from ..errors import BadInputError
-from .mesh import MeshData
+from .mesh import MeshData, unit_frame
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -217,11 +217,10 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
                      decimate_optimal_placement=None, decimate_budget_reached=True,
                      decimate_seconds=time.perf_counter() - t0)
         return MeshData(mesh.vertices.copy(), mesh.faces.copy(), None, stats)
-    # pymeshlab's quadric collapse has fixed epsilons: a millimetre mesh collapses inwards (|r/R - 1| = 0.87
-    # measured at R = 1e-3); it works on the mesh centred and scaled to unit size, and the result is scaled back
-    lo, hi = v0.min(axis=0), v0.max(axis=0)
-    centre, size = 0.5 * (lo + hi), float((hi - lo).max()) or 1.0
+    # pymeshlab's quadric collapse has fixed epsilons: meshes far from unit size are collapsed at unit size
+    centre, size = unit_frame(v0)
     v0 = (v0 - centre) / size
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
     extent = hi - lo
     auto = optimal_placement is None
     optimal = bool(extent.min() >= 0.01 * extent.max()) if auto else bool(optimal_placement)

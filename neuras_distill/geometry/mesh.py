@@ -120,3 +120,25 @@ class MeshData:
         with np.load(path, allow_pickle=False) as data:
             return cls(data["vertices"], data["faces"], data["uvs"] if "uvs" in data else None,
                        core_faces=int(data["core_faces"]) if "core_faces" in data else None)
+
+
+#: Mesh extents (world units) that pymeshlab's quadric collapse and xatlas handle as they are. Both test lengths
+#: and areas against fixed epsilons (and keep float32 positions): outside this range, or far from the origin for
+#: its size, a mesh is processed centred and scaled to unit size.
+SCALE_FREE_RANGE = (0.05, 50.0)
+
+
+def unit_frame(positions: np.ndarray) -> tuple[np.ndarray, float]:
+    """(V, 3) positions -> (centre (3,) float64, size) such that ``(positions - centre) / size`` is what the
+    mesh libraries should see: the box centre and largest extent for a mesh outside :data:`SCALE_FREE_RANGE`
+    or far from the origin (a 1 mm sphere collapsed inwards in the quadric collapse, |r/R - 1| = 0.87, and
+    came back from xatlas as an empty atlas), and the identity (zeros, 1.0) for ordinary meshes, whose results
+    then stay exactly what they were (rescaling them changes which edges collapse first and how charts grow:
+    the soft-fringe case's silhouette band lost 0.24 dB, session 12)."""
+    positions = np.asarray(positions, dtype=np.float64)
+    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    centre, size = 0.5 * (lo + hi), float((hi - lo).max())
+    ordinary = SCALE_FREE_RANGE[0] <= size <= SCALE_FREE_RANGE[1] and float(np.abs(centre).max()) <= 100.0 * size
+    if ordinary or size <= 0.0:
+        return np.zeros(3), 1.0
+    return centre, size

@@ -32,7 +32,7 @@ from multiprocessing.connection import wait as mp_wait
 import numpy as np
 
 from ..errors import BadInputError
-from .mesh import MeshData
+from .mesh import MeshData, unit_frame
 
 #: Test hook: when this environment variable is "abort" the child calls os.abort() (simulated segfault),
 #: "hang" makes it sleep past the time limit. Read in the child only.
@@ -141,17 +141,13 @@ MAX_UNWRAP_FACES = 200_000
 
 
 def normalized_layout(positions: np.ndarray) -> np.ndarray:
-    """(V, 3) positions in any world units -> (V, 3) float32 centred on their box and scaled to unit extent.
-
-    xatlas tests areas and lengths against fixed float32 epsilons: a millimetre-sized mesh (face areas near
-    1e-8) comes back as an empty 0 x 0 atlas, and a mesh 1e5 units from the origin loses its low bits. The
-    layout depends only on relative sizes, so xatlas sees the mesh centred (in float64) at unit size.
-    """
+    """(V, 3) positions in any world units -> (V, 3) float32 positions for xatlas: centred and scaled to unit
+    extent when :func:`~.mesh.unit_frame` says so (xatlas tests areas against fixed float32 epsilons: a
+    millimetre mesh, face areas near 1e-8, comes back as an empty 0 x 0 atlas; a mesh 1e5 units from the origin
+    loses its low bits), as they are otherwise."""
     positions = np.asarray(positions, dtype=np.float64)
-    lo, hi = positions.min(axis=0), positions.max(axis=0)
-    extent = float((hi - lo).max())
-    scale = 1.0 / extent if extent > 0 else 1.0
-    return np.ascontiguousarray((positions - 0.5 * (lo + hi)) * scale, dtype=np.float32)
+    centre, size = unit_frame(positions)
+    return np.ascontiguousarray((positions - centre) / size, dtype=np.float32)
 
 
 def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNWRAP_FACES, resolution: int | None = None,
