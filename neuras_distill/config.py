@@ -89,6 +89,9 @@ class TextureConfig:
     core at the colour level (session 8; held-out 640x360, core interior): no VQ 41.3 dB, 4096 codes 38.9,
     8192 39.8, 16384 40.0 (k-means of 16384 codes costs another ~20 s on two cores). Tuning the codebook on the
     photometric loss with the assignments fixed (the last 15-30% of the run) gained nothing (38.6-39.0)."""
+    quantize: bool = True
+    """Vector-quantize the atlas (``num_codes``). False stores every distinct texel feature as its own code
+    (exact; only when there are at most 65535 of them: the bench's "no VQ" variant)."""
     hidden: int = 16
     """Hidden units of the MLP shader (NeuRas uses 32; 16 halves the per-pixel cost at ~0.1 dB here)."""
     num_layers: int = 2

@@ -160,12 +160,26 @@ def gl_context():
         pytest.skip(f"no headless GL context: {exc}")
 
 
-@pytest.mark.parametrize("use_viewdir,dim,use_facing", [(True, 8, False), (False, 6, False), (True, 8, True),
-                                                        (False, 5, True)])
-def test_glsl_parity_with_torch(use_viewdir, dim, use_facing):
+@pytest.mark.parametrize("use_viewdir,dim,use_facing,max_rows", [(True, 8, False, None), (False, 6, False, None),
+                                                                 (True, 8, True, None), (False, 5, True, None),
+                                                                 (True, 8, False, 7), (False, 5, True, 3)])
+def test_glsl_parity_with_torch(use_viewdir, dim, use_facing, max_rows, monkeypatch, tmp_path):
     moderngl, ctx = gl_context()
     m = make_model(use_viewdir=use_viewdir, dim=dim, use_facing=use_facing)
+    if max_rows is not None:          # a codebook taller than the largest texture side: several codes per row
+        import neuras_distill.bake.bundle as bundle_module
+
+        monkeypatch.setattr(bundle_module, "CODEBOOK_MAX_ROWS", max_rows)
     b = bake(m, quad_mesh(), (0, 0, 0))
+    if max_rows is not None:
+        per_row = b.manifest["codes_per_row"]
+        assert per_row > 1 and b.textures["u_codebook"].shape[0] <= max_rows
+        assert b.textures["u_codebook"].shape[1] == per_row * ((dim + 3) // 4)
+        assert f"% {per_row})" in b.fragment_shader
+        again = load_bundle(b.save(tmp_path / "wrapped"))
+        assert np.array_equal(again.textures["u_codebook"], b.textures["u_codebook"])
+    else:
+        assert "codes_per_row" not in b.manifest
     res = 96
     uv0, uv_scale = np.float32([-0.1, -0.05]), np.float32([1.2, 1.1])    # a border of clamped lookups
     cam = np.float32([0.3, -2.5, 0.4])

@@ -165,7 +165,8 @@ class Bundle:
     def float16_nbytes(self) -> int:
         """Bytes the same atlas would take unquantized in float16 (H * W * D * 2), for the compression ratio."""
         h, w = self.textures["u_index"].shape
-        return float16_feature_nbytes(h, w, int(self.manifest.get("feature_dim", 4 * self.textures["u_codebook"].shape[1])))
+        c4 = self.textures["u_codebook"].shape[1] // int(self.manifest.get("codes_per_row", 1))
+        return float16_feature_nbytes(h, w, int(self.manifest.get("feature_dim", 4 * c4)))
 
 
 def _core_faces(value, num_faces: int, where: str) -> int | None:
@@ -202,8 +203,30 @@ def _decode_png16(data: bytes) -> np.ndarray:
     return a
 
 
-def _baked_textures(atlas_model) -> tuple[np.ndarray, np.ndarray]:
-    """(uint16 index map (H, W), float32 codebook (K, C4, 4)) of a NeuralTextureModel's atlas."""
+#: Rows of the codebook texture at most (the texture height; llvmpipe's and common GPUs' largest side).
+CODEBOOK_MAX_ROWS = 16384
+
+
+def codes_per_row(num_codes: int, max_rows: int = CODEBOOK_MAX_ROWS) -> int:
+    """How many codes share one row of the codebook texture so that it has at most ``max_rows`` rows."""
+    return max(1, -(-int(num_codes) // int(max_rows)))
+
+
+def wrap_codebook(codebook: np.ndarray, per_row: int) -> np.ndarray:
+    """(K, C4, 4) codebook -> (ceil(K / per_row), per_row * C4, 4) texture: code k at row k // per_row,
+    columns (k % per_row) * C4 .. + C4 - 1 (zero padding after the last code). per_row 1: unchanged."""
+    if per_row == 1:
+        return codebook
+    k, c4 = codebook.shape[:2]
+    rows = -(-k // per_row)
+    padded = np.zeros((rows * per_row, c4, 4), np.float32)
+    padded[:k] = codebook
+    return padded.reshape(rows, per_row * c4, 4)
+
+
+def _baked_textures(atlas_model, max_rows: int | None = None) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """(uint16 index map (H, W), float32 codebook texture (rows, per_row * C4, 4), K, per_row) of a
+    NeuralTextureModel's atlas (:func:`wrap_codebook`)."""
     index, codebook = atlas_model.baked_features()
     k, dim = codebook.shape
     if k > MAX_CODES:
@@ -211,7 +234,8 @@ def _baked_textures(atlas_model) -> tuple[np.ndarray, np.ndarray]:
     c4 = (dim + 3) // 4
     cb = np.zeros((k, c4 * 4), np.float32)
     cb[:, :dim] = codebook
-    return index.astype(np.uint16), cb.reshape(k, c4, 4)
+    per_row = codes_per_row(k, CODEBOOK_MAX_ROWS if max_rows is None else max_rows)
+    return index.astype(np.uint16), wrap_codebook(cb.reshape(k, c4, 4), per_row), k, per_row
 
 
 def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = None,
@@ -229,8 +253,8 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
     if model.mesh_layers == 2 and core_faces is None:
         raise BadInputError("bake: the model has a shader per mesh layer but the mesh has one layer "
                             "(core_faces is None); bake it with the two-layer mesh it was trained on")
-    index, cb = _baked_textures(model)
-    k, dim = cb.shape[0], int(model.feature_dim)
+    index, cb, k, per_row = _baked_textures(model)
+    dim = int(model.feature_dim)
     textures = {"u_index": index, "u_codebook": cb}
     sky_shader = None
     manifest = {
@@ -245,10 +269,12 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
         "float16_feature_bytes": float16_feature_nbytes(model.tex_height, model.tex_width, dim),
         "origin": [float(x) for x in (np.zeros(3) if origin is None else np.asarray(origin, np.float64).reshape(3))],
     }
+    if per_row > 1:
+        manifest["codes_per_row"] = per_row
     if skybox is not None:
         from neuras_distill.bake.glsl_sky import generate_sky_fragment_shader
 
-        sky_index, sky_cb = _baked_textures(skybox.atlas)
+        sky_index, sky_cb, _, _ = _baked_textures(skybox.atlas, max_rows=MAX_CODES + 1)  # never wrapped
         textures.update(u_sky_index=sky_index, u_sky_codebook=sky_cb)
         sky_shader = generate_sky_fragment_shader(skybox)
         sky_h, sky_w = skybox.layers.atlas_size
@@ -260,7 +286,8 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
     manifest["core_faces"] = core_faces                 # the mesh's, whatever extra_manifest says
     return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs, core_faces=core_faces),
                   textures=textures,
-                  fragment_shader=generate_fragment_shader(model), background_color=background_color,
+                  fragment_shader=generate_fragment_shader(model, codes_per_row=per_row),
+                  background_color=background_color,
                   manifest=manifest, vertex_shader=vertex_shader, sky_fragment_shader=sky_shader)
 
 
@@ -334,13 +361,16 @@ def _load_files(d: Path, read, exists) -> Bundle:
     h, w = manifest.get("texture_height"), manifest.get("texture_width")
     if index.shape != (h, w):
         raise BadInputError(f"bundle {d}: feature_index.png is {index.shape}, manifest says {(h, w)}")
-    if codebook.dtype != np.float32 or codebook.ndim != 3 or codebook.shape[2] != 4 \
-            or codebook.shape[0] != manifest.get("num_codes"):
+    num_codes, per_row = manifest.get("num_codes"), manifest.get("codes_per_row", 1)
+    rows = -(-int(num_codes) // int(per_row)) if isinstance(num_codes, int) and isinstance(per_row, int) \
+        and per_row >= 1 else None
+    if codebook.dtype != np.float32 or codebook.ndim != 3 or codebook.shape[2] != 4 or rows is None \
+            or codebook.shape[0] != rows or codebook.shape[1] % per_row:
         raise BadInputError(f"bundle {d}: codebook.npy is {codebook.dtype} {codebook.shape}, expected float32 "
-                            f"({manifest.get('num_codes')}, C4, 4)")
-    if index.size and int(index.max()) >= codebook.shape[0]:
+                            f"({rows}, {per_row} x C4, 4) for {num_codes} codes, {per_row} per row")
+    if index.size and int(index.max()) >= num_codes:
         raise BadInputError(f"bundle {d}: feature_index.png refers to code {int(index.max())} but the codebook "
-                            f"has {codebook.shape[0]}")
+                            f"has {num_codes}")
     if mesh.faces.size and (mesh.faces.min() < 0 or mesh.faces.max() >= mesh.num_vertices):
         raise BadInputError(f"bundle {d}: mesh.npz faces index missing vertices")
     mesh.core_faces = _core_faces(manifest.get("core_faces"), mesh.num_faces, f"bundle {d}: manifest.json")

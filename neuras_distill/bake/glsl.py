@@ -77,7 +77,7 @@ def dense_lines(out: list[str], w: np.ndarray, b: np.ndarray, in_names: list[str
 
 
 def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, index: str, codebook: str, c4: int,
-                           prefix: str, indent: str) -> list[str]:
+                           prefix: str, indent: str, codes_per_row: int = 1) -> list[str]:
     """Append the GLSL of a bilinear feature lookup at ``uv`` (``texture.bilinear_corners`` arithmetic: corners
     clamped by CLAMP_TO_EDGE, blended c00, c10, c01, c11) and return the names of the ``c4`` vec4 results
     ``<prefix>_<c>``. Shared by the mesh shader and the skybox shader."""
@@ -99,11 +99,16 @@ def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, inde
         f"{indent}int k11 = int(k.y);",
     ]
     names = []
+    n = int(codes_per_row)
+
+    def at(c: int, k: str) -> str:       # code k's c-th vec4 (``bundle.wrap_codebook``: n codes per texture row)
+        return f"ivec2({c}, {k})" if n == 1 else f"ivec2(({k} % {n}) * {c4} + {c}, {k} / {n})"
+
     for c in range(c4):
-        out.append(f"{indent}vec4 {prefix}_{c} = w00 * texelFetch({codebook}, ivec2({c}, k00), 0)"
-                   f" + w10 * texelFetch({codebook}, ivec2({c}, k10), 0)"
-                   f" + w01 * texelFetch({codebook}, ivec2({c}, k01), 0)"
-                   f" + w11 * texelFetch({codebook}, ivec2({c}, k11), 0);")
+        out.append(f"{indent}vec4 {prefix}_{c} = w00 * texelFetch({codebook}, {at(c, 'k00')}, 0)"
+                   f" + w10 * texelFetch({codebook}, {at(c, 'k10')}, 0)"
+                   f" + w01 * texelFetch({codebook}, {at(c, 'k01')}, 0)"
+                   f" + w11 * texelFetch({codebook}, {at(c, 'k11')}, 0);")
         names.append(f"{prefix}_{c}")
     return names
 
@@ -131,11 +136,12 @@ def _mlp_lines(out: list[str], shader, in_names: list[str], dim: int, c4: int, v
     return f"1.0 / (1.0 + exp(-{names[0]}.xyz))"
 
 
-def generate_fragment_shader(model) -> str:
-    """GLSL #version 330 core fragment shader for a trained ``NeuralTextureModel`` (see module docstring).
+def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
+    """GLSL #version 400 core fragment shader for a trained ``NeuralTextureModel`` (see module docstring).
 
     The texture size is baked in as constants (``TEX_W``, ``TEX_H``); the codebook size is not (it comes
-    with the ``u_codebook`` texture).
+    with the ``u_codebook`` texture), but its layout is: ``codes_per_row`` codes per texture row
+    (``bundle.wrap_codebook``; more than 1 only for codebooks taller than the largest texture side).
     """
     tex_w, tex_h, dim = int(model.tex_width), int(model.tex_height), int(model.feature_dim)
     c4 = (dim + 3) // 4
@@ -164,7 +170,8 @@ def generate_fragment_shader(model) -> str:
         "",
         "void main() {",
     ]
-    in_names = bilinear_feature_lines(out, "v_uv", tex_w, tex_h, "u_index", "u_codebook", c4, "a0", "    ")
+    in_names = bilinear_feature_lines(out, "v_uv", tex_w, tex_h, "u_index", "u_codebook", c4, "a0", "    ",
+                                      codes_per_row)
     if use_facing:
         out += ["    vec3 dir = normalize(v_world - u_cam_pos);",
                 "    vec3 nrm = normalize(v_normal);",

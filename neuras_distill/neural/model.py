@@ -225,8 +225,8 @@ class NeuralTextureModel(nn.Module):
         """What the shader reads: (index map (H, W) int64, codebook (K', D) float32), unused codes dropped.
 
         With use_vq the index map is the nearest code of every texel (what the forward pass picks) remapped
-        to the pruned codebook. Without VQ the "codebook" is the texel list itself (identity index map),
-        which only fits the uint16 index texture for atlases of at most 65535 texels.
+        to the pruned codebook. Without VQ the "codebook" is the list of distinct texel features (exact, no
+        quantization), which fits the uint16 index texture when there are at most 65535 of them.
         """
         flat = self.texture.flat.detach().float()
         if self.quantizing:
@@ -237,11 +237,13 @@ class NeuralTextureModel(nn.Module):
             if self.use_vq:
                 raise BadInputError("the model's vector quantizer was never switched on (start_vq); "
                                     "train it with fit() before baking")
-            if flat.shape[0] > 65535:
-                raise BadInputError(f"a {self.tex_width}x{self.tex_height} atlas without VQ has {flat.shape[0]} "
-                                    "texels, more than the 65535 a uint16 index texture can address; use use_vq=True")
-            index = torch.arange(flat.shape[0])
-            codebook = flat.clone()
+            # identical texels (untouched ones filled with their nearest touched feature) share one entry:
+            # lossless, and an atlas whose distinct features fit 16 bits plays without VQ
+            codebook, index = torch.unique(flat, dim=0, return_inverse=True)
+            if codebook.shape[0] > 65535:
+                raise BadInputError(f"a {self.tex_width}x{self.tex_height} atlas without VQ has {codebook.shape[0]} "
+                                    "distinct texel features, more than the 65535 a uint16 index texture can "
+                                    "address; use use_vq=True")
         return (index.view(self.tex_height, self.tex_width).cpu().numpy().astype(np.int64),
                 codebook.cpu().numpy().astype(np.float32))
 
