@@ -107,6 +107,21 @@ def build_parser() -> argparse.ArgumentParser:
                    help="window: what to show first: neural, plain, uv or index (keys 1-4 switch)")
     p.add_argument("--no-skybox", action="store_true", help="window: start with the skybox pass off (key K)")
 
+    p = sub.add_parser("bench", help="error against run time for a finished run: the field at several step "
+                                        "counts, the plain-texture floor and bundle variants distilled from the "
+                                        "run's stored stages, with the Pareto front (writes RUN_DIR/bench/)")
+    p.add_argument("run", metavar="RUN_DIR", help="a run folder (the --out of demo / from-synthetic / from-ngp / "
+                                                  "from-sdf)")
+    p.add_argument("--resolutions", default="640x360,1920x1080", metavar="WxH,...",
+                   help="frame sizes to score and time at (the held-out cameras' aspect ratio; default "
+                        "640x360,1920x1080)")
+    p.add_argument("--variants", default=None, metavar="NAME,...",
+                   help="bundle variants to distil (default all: atlas-half, atlas-double, mlp-8, mlp-32, "
+                        "mlp-two-hidden, no-view, no-vq, faces-quarter, faces-half)")
+    p.add_argument("--target-ms", type=float, default=None,
+                   help="frame time the recommendation aims at (default 16.7 ms, 60 Hz)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
     p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file; "
                                          "web: a static folder that plays it in a browser)")
     p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
@@ -139,21 +154,13 @@ def _config_from_args(args):
     return load_config(preset=args.preset, path=args.config, overrides=overrides)
 
 
-def _run_scene(args, name: str) -> int:
+def _scene_inputs(args, name: str) -> tuple:
     from .fields.synthetic import make_scene
-    from .pipeline.run import distill
-    from .pipeline.rundir import check_output_folder
-    from pathlib import Path
 
     if name == "street" and args.preset is None and args.config is None:
         args.preset = "street"          # its preset fits the scene to this machine (configs/street.toml)
     cfg = _config_from_args(args)
-    out = Path(args.out or f"runs/{name}" + ("" if args.kind in (None, "sdf") else f"-{args.kind}"))
-    check_output_folder(out.resolve())  # fail before any work
-    field = make_scene(name, kind=args.kind)
-    distill(field, None, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
-            fresh=args.fresh, keep_work=args.keep_work, source=_source(args))
-    return 0
+    return make_scene(name, kind=args.kind), None, cfg
 
 
 def _parse_box(text: str):
@@ -168,19 +175,15 @@ def _parse_box(text: str):
     return [v[:3], v[3:]]
 
 
-def _run_checkpoint(args, path: str, adapter: str, options: dict) -> int:
+def _checkpoint_inputs(args, path: str, adapter: str, options: dict) -> tuple:
     from pathlib import Path
 
     from .errors import require
-    from .pipeline.run import distill
-    from .pipeline.rundir import check_output_folder
     from .registry import load_field
     from .render.cameras import Cameras
 
     cfg = _config_from_args(args)
     src = Path(path)
-    out = Path(args.out or f"runs/{src.stem or 'field'}")
-    check_output_folder(out.resolve())  # fail before any work
     cameras = None
     cam_path = getattr(args, "cameras", None)
     if cam_path is not None:
@@ -192,20 +195,18 @@ def _run_checkpoint(args, path: str, adapter: str, options: dict) -> int:
     if cameras is None and getattr(field, "cameras", None) is None and cam_path is None:
         require(callable(getattr(field, "default_cameras", None)),
                 f"{src} stores no cameras; pass --cameras transforms.json")
-    distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
-            fresh=args.fresh, keep_work=args.keep_work, source=_source(args))
-    return 0
+    return field, cameras, cfg
 
 
-def _from_ngp(args) -> int:
+def _ngp_inputs(args) -> tuple:
     options = {"latent_view": args.latent_view if args.latent_view == "mean" else _int(args.latent_view,
                                                                                         "--latent-view")}
     if args.foreground_box is not None:
         options["foreground_box"] = _parse_box(args.foreground_box)
-    return _run_checkpoint(args, args.snapshot, "instant_ngp", options)
+    return _checkpoint_inputs(args, args.snapshot, "instant_ngp", options)
 
 
-def _from_sdf(args) -> int:
+def _sdf_inputs(args) -> tuple:
     from pathlib import Path
 
     options: dict = {"density": args.density}
@@ -216,7 +217,52 @@ def _from_sdf(args) -> int:
         options["width"], options["height"] = _int(w, "--image-size"), _int(h, "--image-size")
     if args.model_config is not None:
         options["config"] = args.model_config
-    return _run_checkpoint(args, args.checkpoint, "neus", options)
+    return _checkpoint_inputs(args, args.checkpoint, "neus", options)
+
+
+#: The commands that run the pipeline, and how each builds its (field, cameras or None, config).
+RUN_COMMANDS = {"demo": lambda a: _scene_inputs(a, DEFAULT_SCENE), "from-synthetic": lambda a: _scene_inputs(a, a.name),
+                "from-ngp": _ngp_inputs, "from-sdf": _sdf_inputs}
+
+
+def run_inputs(args) -> tuple:
+    """(field, cameras or None, DistillConfig) of a parsed run command (``RUN_COMMANDS``): what it distills.
+    The bench rebuilds a run's field from the command its report recorded (``report["source"]``)."""
+    return RUN_COMMANDS[args.command](args)
+
+
+def _default_out(args) -> "Path":
+    from pathlib import Path
+
+    if args.command in ("demo", "from-synthetic"):
+        name = DEFAULT_SCENE if args.command == "demo" else args.name
+        return Path(f"runs/{name}" + ("" if args.kind in (None, "sdf") else f"-{args.kind}"))
+    return Path(f"runs/{Path(args.snapshot if args.command == 'from-ngp' else args.checkpoint).stem or 'field'}")
+
+
+def _distill_command(args) -> int:
+    from pathlib import Path
+
+    from .pipeline.rundir import check_output_folder
+    from .pipeline.run import distill
+
+    out = Path(args.out) if args.out else _default_out(args)
+    check_output_folder(out.resolve())  # fail before any work
+    field, cameras, cfg = run_inputs(args)
+    distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
+            fresh=args.fresh, keep_work=args.keep_work, source=_source(args))
+    return 0
+
+
+def _bench(args) -> int:
+    from .bench import bench
+    from .bench.run import parse_resolutions
+
+    resolutions = parse_resolutions(args.resolutions)
+    variants = None if args.variants is None else [v.strip() for v in args.variants.split(",") if v.strip()]
+    bench(args.run, resolutions=resolutions, variants=variants, target_ms=args.target_ms,
+          progress=not args.quiet, log=(lambda m: None) if args.quiet else print)
+    return 0
 
 
 def _int(text: str, flag: str) -> int:
@@ -336,14 +382,10 @@ def main(argv: list[str] | None = None) -> int:
     from .errors import BadInputError
 
     try:
-        if args.command == "demo":
-            return _run_scene(args, DEFAULT_SCENE)
-        if args.command == "from-synthetic":
-            return _run_scene(args, args.name)
-        if args.command == "from-ngp":
-            return _from_ngp(args)
-        if args.command == "from-sdf":
-            return _from_sdf(args)
+        if args.command in RUN_COMMANDS:
+            return _distill_command(args)
+        if args.command == "bench":
+            return _bench(args)
         if args.command == "view":
             return _view(args)
         if args.command == "check":

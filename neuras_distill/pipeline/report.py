@@ -237,8 +237,13 @@ def _md_figure(fig) -> str:
 
 def markdown(rep: dict) -> str:
     """report.md: the blocks of :func:`report_blocks` as Markdown, each followed by a blank line."""
+    return blocks_markdown(report_blocks(rep))
+
+
+def blocks_markdown(blocks: list[tuple]) -> str:
+    """Report blocks (heading, para, table, list, figures) as Markdown, each followed by a blank line."""
     lines = []
-    for block in report_blocks(rep):
+    for block in blocks:
         kind = block[0]
         if kind == "heading":
             lines.append("#" * block[1] + " " + block[2])
@@ -287,6 +292,49 @@ def plot(rep: dict, path: Path) -> None:
     ax.set_ylabel("training PSNR (dB)")
     ax.set_title("distillation")
     ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_tradeoff(points: list[dict], fronts: dict, path: Path) -> None:
+    """The bench's plot: per resolution, PSNR against milliseconds per frame (log) for the field's step counts
+    (a line), the plain-texture floor and every bundle; the Pareto front dashed, the default starred."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = list(fronts)
+    fig, axes = plt.subplots(1, len(keys), figsize=(6.5 * len(keys), 5), squeeze=False)
+    for ax, key in zip(axes[0], keys):
+        here = [p for p in points if f"{p['resolution'][0]}x{p['resolution'][1]}" == key]
+        ms = {p["label"]: 1000.0 * p["seconds_per_frame"] for p in here}
+        field = [p for p in here if p["kind"] == "field"]
+        ax.plot([ms[p["label"]] for p in field], [p["psnr"] for p in field], "o-", color="C0", label="field")
+        for p in field:
+            ax.annotate(f"{p['steps']} steps", (ms[p["label"]], p["psnr"]), textcoords="offset points",
+                        xytext=(4, -10), fontsize=7)
+        for p in here:
+            if p["kind"] == "field":
+                continue
+            style = ("*", "C3", 15) if p["default"] else (("D", "C2", 8) if p["kind"] == "plain-texture"
+                                                         else ("s", "C1", 7))
+            ax.plot([ms[p["label"]]], [p["psnr"]], style[0], color=style[1], markersize=style[2])
+            ax.annotate(p["label"], (ms[p["label"]], p["psnr"]), textcoords="offset points", xytext=(5, 3),
+                        fontsize=7)
+        front = [next(p for p in here if p["label"] == label) for label in fronts[key]]
+        ax.plot([ms[p["label"]] for p in front], [p["psnr"] for p in front], "--", color="0.5", lw=1,
+                label="Pareto front")
+        ax.plot([], [], "*", color="C3", markersize=12, label="default bundle")
+        ax.plot([], [], "s", color="C1", label="bundle variants")
+        ax.plot([], [], "D", color="C2", label="plain texture (floor)")
+        ax.set_xscale("log")
+        ax.set_xlabel("milliseconds per frame (log)")
+        ax.set_ylabel(f"PSNR vs the field at {here[0]['reference_steps']} steps (dB)")
+        ax.set_title(f"error vs run time @ {key}")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

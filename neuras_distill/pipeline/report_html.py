@@ -55,7 +55,7 @@ def _table(header, rows) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _block_html(block) -> str:
+def block_html(block) -> str:
     kind = block[0]
     if kind == "heading":
         return f"<h{block[1]}>{html.escape(block[2])}</h{block[1]}>"
@@ -114,7 +114,7 @@ def render_html(rep: dict, root: Path, player_size: tuple[int, int] | None) -> s
     parts = []
     first_table = next(i for i, b in enumerate(blocks) if b[0] == "table")
     for i, block in enumerate(blocks):
-        parts.append(_block_html(block))
+        parts.append(block_html(block))
         if i == first_table:
             parts.append(_player_html(player_size))
     parts.append(_other_views(root, _shown_images(blocks)))

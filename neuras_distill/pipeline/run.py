@@ -275,7 +275,7 @@ def _resolve_core_view_dependence(field, mesh, cfg: DistillConfig, use_viewdir: 
 
 def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict | None = None,
             out: str | Path | None = None, *, log=None, progress: bool = True, fresh: bool = False,
-            keep_work: bool = True, source: dict | None = None) -> DistillResult:
+            keep_work: bool = True, source: dict | None = None, reuse_from=()) -> DistillResult:
     """Distill ``field`` into a bundle that OpenGL plays, and measure it against the field.
 
     Args:
@@ -292,6 +292,8 @@ def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict 
         source: where the field came from, stored as ``report["source"]`` (the command line records its
             arguments and working folder, so the run can be repeated or benchmarked from its folder); default:
             the field's class.
+        reuse_from: more work areas (``<run>/work`` folders) whose stored stages may be reused (hard-linked)
+            when their keys match: the bench distils its variants from the run's teacher, mesh and G-buffers.
     Returns:
         DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``.
     Raises:
@@ -321,7 +323,7 @@ def distill(field, cameras: Cameras | None = None, config: DistillConfig | dict 
             log(f"found an unfinished run in {tmp.name}: reusing its finished stages")
         for path in folder.removed_leftovers:
             log(f"removed {path.name} (left by a killed run of an earlier version)")
-        cache = StageCache(folder.work, [folder.previous_work], fresh=fresh, log=log)
+        cache = StageCache(folder.work, [folder.previous_work, *map(Path, reuse_from)], fresh=fresh, log=log)
         try:
             result = _run(field, cameras, cfg, tmp, log, progress, stability, cache=cache, keep_work=keep_work,
                           source=source)
@@ -462,7 +464,9 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
     auto_res = cfg.texture.resolution == 0
     enclose = _resolve_fringe(field, cfg, train_opacity, left_out)
 
-    trial_side = min(1024, cfg.texture.max_resolution) if auto_res else cfg.texture.resolution
+    # the trial unwrap's side does not depend on a fixed atlas side, so runs that differ only in it (the bench's
+    # atlas variants) share the stored surface; the final unwrap is at the chosen side
+    trial_side = min(1024, cfg.texture.max_resolution)
 
     def extract() -> Surface:
         return extract_surface(field, train, grid_resolution=cfg.geometry.grid_resolution,
@@ -544,14 +548,15 @@ def _run(field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, pr
 
     # 5. distill ------------------------------------------------------------------------------------
     t = cfg.texture
-    stages.start("distill", f"{tex_res}^2 x {t.feature_dim} feature atlas, {t.num_codes} codes, "
-                            f"MLP {t.num_layers}x{t.hidden}{'' if use_viewdir else ' (no view input)'}, "
+    stages.start("distill", f"{tex_res}^2 x {t.feature_dim} feature atlas, "
+                            + (f"{t.num_codes} codes, " if t.quantize else "no VQ, ")
+                            + f"MLP {t.num_layers}x{t.hidden}{'' if use_viewdir else ' (no view input)'}, "
                             f"{plan['steps']} steps" + (f" (at most {plan['time_budget_s']:.0f} s)"
                                                         if plan["time_budget_s"] else ""))
     model = NeuralTextureModel(tex_res, tex_res, feature_dim=t.feature_dim, num_codes=t.num_codes,
                                hidden=t.hidden, num_layers=t.num_layers, use_viewdir=use_viewdir,
                                use_facing=use_facing, mesh_layers=len(local_mesh.layers()),
-                               core_viewdir=core_viewdir)
+                               core_viewdir=core_viewdir, use_vq=t.quantize)
     keys["distill"] = digest("distill", keys["gbuffer"], keys["plan"], plan["steps"], plan["time_budget_s"],
                              _settings(cfg.texture), _settings(cfg.train, ("checkpoint_every_s",)),
                              _settings(cfg.skybox), use_viewdir, use_facing, core_viewdir, use_skybox,
