@@ -4,10 +4,11 @@ Every point at a resolution is scored against the same reference: the field marc
 its densest point (``reference_steps``), on every held-out view. Errors are means over the views of PSNR, SSIM
 (``metrics``) and FLIP (``flip_metric``, 0 = identical).
 
-Timing: the field (torch, this machine's CPU or GPU) renders each view once after one warm-up frame; its point
-is the median over the views, with the 10th-90th percentile spread. GL frames (bundles and the plain-texture
-floor) are timed by ``BundleRenderer.time_frames`` (``ctx.finish()`` before each clock stop), 5 warm-up frames
-then ``frames`` (>= 30) cycling through the views: median and 10th-90th percentiles.
+Timing: the field (torch, this machine's CPU or GPU) renders each view once per step count after one warm-up
+frame, the step counts interleaved view by view; its point is the median over the views, with the 10th-90th
+percentile spread. GL frames (bundles and the plain-texture floor) are timed by ``BundleRenderer.time_frames``
+(``ctx.finish()`` before each clock stop) in 3 rounds interleaved over the bundles, 3 warm-up frames per round,
+>= 30 frames in all cycling through the views: median and 10th-90th percentiles of the pooled frames.
 """
 
 from __future__ import annotations
@@ -57,31 +58,66 @@ def render_reference(field, cameras, steps: int, progress=None) -> Reference:
     return Reference(int(steps), images)
 
 
-def field_point(field, cameras, steps: int, reference: Reference, progress=None) -> dict:
-    """The field marched with ``steps``: scored and timed on every camera (one warm-up frame first)."""
+def field_points(field, cameras, steps: list[int], reference: Reference, progress=None) -> list[dict]:
+    """The field marched with each of ``steps``: scored and timed on every camera. One warm-up frame per step
+    count, then the step counts interleaved view by view, so that a drift of the machine's speed (other
+    processes, the CPU's clock) falls on every point alike instead of on whichever ran last."""
     from ..render.volume import VolumeRenderer
 
-    renderer = VolumeRenderer(field, num_steps=int(steps))
-    renderer.render(cameras, 0)
-    images, seconds = [], []
+    renderers = [VolumeRenderer(field, num_steps=int(s)) for s in steps]
+    for r in renderers:
+        r.render(cameras, 0)
+    images = [[] for _ in steps]
+    seconds = [[] for _ in steps]
     for i in range(len(cameras)):
-        t0 = time.perf_counter()
-        images.append(renderer.render(cameras, i)["rgb"])
-        seconds.append(time.perf_counter() - t0)
-        if progress:
-            progress()
-    timing = _spread_ms(seconds)
-    return {"label": f"field, {steps} steps", "kind": "field", "steps": int(steps),
-            "seconds_per_frame": timing["median_ms"] / 1000.0, "timing": timing, **scores(images, reference)}
+        for k, r in enumerate(renderers):
+            t0 = time.perf_counter()
+            images[k].append(r.render(cameras, i)["rgb"])
+            seconds[k].append(time.perf_counter() - t0)
+            if progress:
+                progress()
+    points = []
+    for s, imgs, secs in zip(steps, images, seconds):
+        timing = _spread_ms(secs)
+        points.append({"label": f"field, {s} steps", "kind": "field", "steps": int(s),
+                       "seconds_per_frame": timing["median_ms"] / 1000.0, "timing": timing, **scores(imgs, reference)})
+    return points
 
 
-def gl_point(bundle, cameras, reference: Reference, *, label: str, kind: str, frames: int = 30) -> dict:
-    """A bundle (or the plain-texture bundle) played by ``BundleRenderer``: scored on every camera, timed."""
+@dataclass
+class GLEntry:
+    """One bundle to play at a bench point: its label, kind ("bundle" | "plain-texture") and extra fields."""
+
+    label: str
+    kind: str
+    bundle: object
+    extra: dict
+
+
+def gl_points(entries: list[GLEntry], cameras, reference: Reference, *, frames: int = 30, rounds: int = 3,
+              progress=None) -> list[dict]:
+    """Bundles (and the plain-texture floor) played by ``BundleRenderer``: scored on every camera, then timed
+    in ``rounds`` interleaved rounds (each bundle ``ceil(frames / rounds)`` frames after 3 warm-up frames per
+    round, ``ctx.finish()`` before each clock stop); each point's median and spread pool its rounds' frames."""
     from ..playback.renderer import BundleRenderer
 
-    with BundleRenderer(bundle) as player:
-        images = [player.render(cameras, i) for i in range(len(cameras))]
-        timing = player.time_frames(cameras, warmup=5, frames=max(30, int(frames)))
-    spread = {k: timing[k] for k in ("median_ms", "p10_ms", "p90_ms", "frames")}
-    return {"label": label, "kind": kind, "steps": None, "seconds_per_frame": timing["median_ms"] / 1000.0,
-            "timing": spread, **scores(images, reference)}
+    per_round = -(-max(30, int(frames)) // max(1, int(rounds)))
+    players = [BundleRenderer(e.bundle) for e in entries]
+    try:
+        images = [[p.render(cameras, i) for i in range(len(cameras))] for p in players]
+        times = [[] for _ in entries]
+        for _ in range(max(1, int(rounds))):
+            for k, p in enumerate(players):
+                times[k].extend(p.time_frames(cameras, warmup=3, frames=per_round)["times_ms"])
+        points = []
+        for e, imgs, ms in zip(entries, images, times):
+            timing = _spread_ms(np.asarray(ms) / 1000.0)
+            points.append({"label": e.label, "kind": e.kind, "steps": None,
+                           "seconds_per_frame": timing["median_ms"] / 1000.0, "timing": timing,
+                           **scores(imgs, reference), **e.extra})
+            if progress:
+                progress()
+        return points
+    finally:
+        for p in players:
+            p.release()

@@ -46,8 +46,17 @@ def bench_blocks(result: dict, image_prefix: str = "") -> list[tuple]:
                                    f"frame rate ({_ms(default)} against {_ms(plain)} ms) and scores "
                                    f"{default['psnr'] - plain['psnr']:+.2f} dB against it."))
     pick = result.get("recommended")
+    if pick:
+        advice = f"`{pick}`."
+    else:
+        largest = max(result["points"], key=lambda p: p["resolution"][0] * p["resolution"][1])["resolution"]
+        bundles = [p for p in result["points"] if p["kind"] == "bundle" and p["resolution"] == largest]
+        fastest = min(bundles, key=lambda p: p["seconds_per_frame"]) if bundles else None
+        advice = "no bundle is that fast on this machine" + (
+            f"; the fastest is `{fastest['label']}` at {1000 * fastest['seconds_per_frame']:.2f} ms "
+            f"({fastest['psnr']:.2f} dB)." if fastest else ".")
     blocks.append(("para", f"**Recommended for {result['target_ms']:.1f} ms per frame** at the largest resolution: "
-                           + (f"`{pick}`." if pick else "no bundle is that fast on this machine.")))
+                           + advice))
     if result.get("skipped"):
         blocks.append(("list", [(f"{name} skipped: {why}", None) for name, why in result["skipped"].items()]))
     blocks.append(("list", [(f"`{name}`: {v['description']} (config changes {json.dumps(v['changes'])})", None)

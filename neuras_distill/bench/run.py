@@ -30,6 +30,11 @@ FIELD_STEPS = (32, 64, 128)
 DEFAULT_TARGET_MS = 1000.0 / 60.0
 
 
+#: Parts of each variant's run folder the bench removes (its side-by-side images and web player); the bundle,
+#: report.json/md and the stage timings stay in ``bench/variants/NAME/``.
+VARIANT_FOLDERS_DROPPED = ("views", "web")
+
+
 def parse_resolutions(text: str) -> list[tuple[int, int]]:
     """``"640x360,1920x1080"`` -> [(640, 360), (1920, 1080)]; sides 8..8192."""
     out = []
@@ -138,7 +143,7 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
     from ..pipeline.run import distill
     from ..playback.context import gl_info
     from ..render.cameras import Cameras
-    from .measure import field_point, gl_point, render_reference
+    from .measure import GLEntry, field_points, gl_points, render_reference
 
     t_start = time.perf_counter()
     log = log or (lambda m: None)
@@ -176,6 +181,8 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
                 result = distill(field, cameras, cfg, tmp / "variants" / v.name, progress=False, log=lambda m: None,
                                  keep_work=False, reuse_from=[run / "work"], source=report.get("source"))
                 bundles[v.name] = (v, result.bundle, result.report)
+                for heavy in VARIANT_FOLDERS_DROPPED:      # 12 of a variant's 13 MB on the demo
+                    shutil.rmtree(tmp / "variants" / v.name / heavy, ignore_errors=True)
             except BadInputError as exc:
                 skipped[v.name] = str(exc)
                 log(f"bench: variant {v.name} skipped: {exc}")
@@ -186,27 +193,22 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
             cams = test.resized(w, h)
             bar.set_postfix_str(f"{w}x{h}: field reference, {reference_steps} steps")
             reference = render_reference(field, cams, reference_steps, progress=lambda: bar.update(1))
-            here = []
-            for s in steps:
-                bar.set_postfix_str(f"{w}x{h}: field, {s} steps")
-                here.append(field_point(field, cams, s, reference, progress=lambda: bar.update(1)))
+            bar.set_postfix_str(f"{w}x{h}: field at {', '.join(map(str, steps))} steps")
+            here = field_points(field, cams, steps, reference, progress=lambda: bar.update(1))
             here[steps.index(teacher_steps)]["label"] += " (the teacher's)"
+            entries = []
             if default.plain_rgb is not None:
-                bar.set_postfix_str(f"{w}x{h}: plain texture")
                 plain = plain_bundle(default, default.plain_rgb.astype("float32") / 255.0)
-                here.append({**gl_point(plain, cams, reference, label="plain texture (no MLP)",
-                                        kind="plain-texture"), "bundle_bytes": None})
-            bar.update(1)
-            bar.set_postfix_str(f"{w}x{h}: default bundle")
-            here.append({**gl_point(default, cams, reference, label="default", kind="bundle"), "default": True,
-                         "bundle_bytes": int(report["bundle_bytes"]), "description": "the run's own bundle"})
-            bar.update(1)
+                entries.append(GLEntry("plain texture (no MLP)", "plain-texture", plain, {"bundle_bytes": None}))
+            entries.append(GLEntry("default", "bundle", default, {
+                "default": True, "bundle_bytes": int(report["bundle_bytes"]), "description": "the run's own bundle"}))
             for name, (v, bundle, rep) in bundles.items():
-                bar.set_postfix_str(f"{w}x{h}: {name}")
-                here.append({**gl_point(bundle, cams, reference, label=name, kind="bundle"),
-                             "bundle_bytes": int(rep["bundle_bytes"]), "description": v.description,
-                             "texture_resolution": rep["texture_resolution"], "mesh_faces": rep["mesh_faces"]})
-                bar.update(1)
+                entries.append(GLEntry(name, "bundle", bundle, {
+                    "bundle_bytes": int(rep["bundle_bytes"]), "description": v.description,
+                    "texture_resolution": rep["texture_resolution"], "mesh_faces": rep["mesh_faces"]}))
+            bar.set_postfix_str(f"{w}x{h}: {len(entries)} bundles, interleaved")
+            here.extend(gl_points(entries, cams, reference, progress=lambda: bar.update(1)))
+            bar.update(2 + len(chosen) - len(entries))
             for p in here:
                 p.setdefault("default", False)
                 p.setdefault("bundle_bytes", None)

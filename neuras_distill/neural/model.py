@@ -23,7 +23,11 @@ from torch import nn
 from neuras_distill.neural.shader import MLPShader
 from neuras_distill.neural.texture import NeuralTexture, bilinear_corners
 from neuras_distill.neural.vq import VectorQuantizer
+from neuras_distill.config import TextureConfig
 from neuras_distill.errors import BadInputError
+
+#: The library's defaults are the configuration's (one place: ``config.py``).
+_TEXTURE = TextureConfig()
 
 
 def view_inputs(dirs, face_id, normals, use_facing: bool, core_faces: int | None = None) -> np.ndarray:
@@ -74,8 +78,9 @@ class NeuralTextureModel(nn.Module):
             shader takes it (the direction columns of ``dirs`` are there either way).
     """
 
-    def __init__(self, tex_height: int, tex_width: int, feature_dim: int = 8, num_codes: int = 1024,
-                 hidden: int = 32, num_layers: int = 3, use_viewdir: bool = True, use_vq: bool = True,
+    def __init__(self, tex_height: int, tex_width: int, feature_dim: int = _TEXTURE.feature_dim,
+                 num_codes: int = _TEXTURE.num_codes, hidden: int = _TEXTURE.hidden,
+                 num_layers: int = _TEXTURE.num_layers, use_viewdir: bool = True, use_vq: bool = _TEXTURE.quantize,
                  sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False,
                  mesh_layers: int = 1, core_viewdir: bool | None = None) -> None:
         super().__init__()

@@ -19,6 +19,11 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..config import TextureConfig
+
+#: The library's defaults are the configuration's (one place: ``config.py``).
+_TEXTURE = TextureConfig()
+
 
 class MLPShader(nn.Module):
     """rgb = sigmoid(L_n(relu(... relu(L_1([feature, dir]))))).
@@ -32,7 +37,8 @@ class MLPShader(nn.Module):
             direction is used only with use_viewdir.
     """
 
-    def __init__(self, feature_dim: int, hidden: int = 32, num_layers: int = 3, use_viewdir: bool = True,
+    def __init__(self, feature_dim: int, hidden: int = _TEXTURE.hidden, num_layers: int = _TEXTURE.num_layers,
+                 use_viewdir: bool = True,
                  use_facing: bool = False) -> None:
         super().__init__()
         if num_layers < 1:

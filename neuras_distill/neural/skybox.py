@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..config import SkyboxConfig
 from ..errors import BadInputError
 from .model import NeuralTextureModel
 
@@ -197,7 +198,8 @@ class SkyboxModel(nn.Module):
         feature_dim: D channels per texel; num_codes: K codes of the skybox codebook; hidden: MLP width.
     """
 
-    def __init__(self, layers: SkyboxLayers, feature_dim: int = 8, num_codes: int = 256, hidden: int = 16) -> None:
+    def __init__(self, layers: SkyboxLayers, feature_dim: int = SkyboxConfig.feature_dim,
+                 num_codes: int = SkyboxConfig.num_codes, hidden: int = SkyboxConfig.hidden) -> None:
         super().__init__()
         self.layers = layers
         h, w = layers.atlas_size

@@ -44,7 +44,11 @@ from tqdm import tqdm
 
 from neuras_distill.neural.losses import ssim
 from neuras_distill.neural.model import NeuralTextureModel
+from neuras_distill.config import TrainConfig
 from neuras_distill.errors import BadInputError
+
+#: The library's defaults are the configuration's (one place: ``config.py``).
+_TRAIN = TrainConfig()
 
 
 @dataclass
@@ -88,11 +92,12 @@ def _as_tensor(x, dtype, name: str, shape_tail: tuple, lead: tuple | None = None
     return t.to(dtype)
 
 
-def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, lr: float = 0.01,
-        texture_lr: float | None = None, batch_patches: int = 32, patch: int = 16, ssim_weight: float = 0.0,
-        vq_weight: float = 1.0, vq_warmup: float = 1.0, lr_final_ratio: float = 0.1,
+def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, lr: float = _TRAIN.lr,
+        texture_lr: float | None = None, batch_patches: int = _TRAIN.batch_patches, patch: int = _TRAIN.patch,
+        ssim_weight: float = _TRAIN.ssim_weight, vq_weight: float = 1.0, vq_warmup: float = _TRAIN.vq_warmup,
+        lr_final_ratio: float = 0.1,
         time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
-        seed: int = 0, num_threads: int | None = None, skybox=None, origins=None,
+        seed: int = _TRAIN.seed, num_threads: int | None = None, skybox=None, origins=None,
         checkpoint=None) -> TrainLog:
     """Train ``model`` on teacher images.
 

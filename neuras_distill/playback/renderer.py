@@ -271,7 +271,8 @@ class BundleRenderer:
         """Frame times of full draws at the cameras' resolution, with ``ctx.finish()`` before each clock stop.
 
         Cycles through ``indices`` (default all cameras); ``warmup`` frames are drawn first and not counted.
-        Returns ``{"median_ms", "p10_ms", "p90_ms", "fps" (1000 / median_ms), "frames", "resolution" [W, H]}``.
+        Returns ``{"median_ms", "p10_ms", "p90_ms", "fps" (1000 / median_ms), "frames", "resolution" [W, H],
+        "times_ms" (every timed frame, in order)}``.
         """
         idx = list(range(len(cameras))) if indices is None else [int(k) for k in indices]
         if not idx:
@@ -289,7 +290,7 @@ class BundleRenderer:
         median = float(np.median(times))
         return {"median_ms": median, "p10_ms": float(np.percentile(times, 10)), "p90_ms": float(np.percentile(times, 90)),
                 "fps": 1000.0 / median if median > 0 else float("inf"), "frames": frames,
-                "resolution": [int(cameras.width), int(cameras.height)]}
+                "resolution": [int(cameras.width), int(cameras.height)], "times_ms": times.tolist()}
 
     def release(self) -> None:
         """Free the GL objects (program, buffers, textures, framebuffers)."""
