@@ -13,9 +13,6 @@ from neuras_distill.bench.run import parse_resolutions
 from neuras_distill.bench.variants import RunFacts, pick_variants, variant_overrides
 from neuras_distill.cli import main
 from neuras_distill.errors import BadInputError
-from neuras_distill.playback.context import gl_available
-
-GL_OK, GL_REASON = gl_available()
 
 
 def _pt(label, ms, psnr, kind="bundle"):
@@ -55,8 +52,6 @@ def test_every_variant_pins_the_runs_training_and_changes_one_setting():
 
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory):
-    if not GL_OK:
-        pytest.skip(f"no OpenGL context: {GL_REASON}")
     root = tmp_path_factory.mktemp("bench")
     out = root / "sphere"
     assert main(["from-synthetic", "sphere", "--preset", "fast", "--eval-width", "160", "--steps", "200",
@@ -69,6 +64,7 @@ def small_run(tmp_path_factory):
     (["--resolutions", "160x120"], "does not match the held-out cameras' aspect ratio (160x90)"),
     (["--variants", "mlp-64"], "unknown bench variant 'mlp-64'"),
 ])
+@pytest.mark.gl  # small_run distils with OpenGL
 @pytest.mark.slow
 def test_bad_bench_arguments_exit_2_and_write_nothing(small_run, capsys, argv, message):
     assert main(["bench", str(small_run), "--quiet", *argv]) == 2
@@ -77,6 +73,7 @@ def test_bad_bench_arguments_exit_2_and_write_nothing(small_run, capsys, argv, m
     assert not (small_run / "bench").exists() and not (small_run / ".bench.partial").exists()
 
 
+@pytest.mark.gl
 @pytest.mark.slow
 def test_a_folder_that_is_not_a_run_or_has_no_work_area_is_refused(small_run, tmp_path, capsys):
     assert main(["bench", str(tmp_path), "--quiet"]) == 2
@@ -90,7 +87,6 @@ def test_a_folder_that_is_not_a_run_or_has_no_work_area_is_refused(small_run, tm
 
 @pytest.mark.gl
 @pytest.mark.slow
-@pytest.mark.skipif(not GL_OK, reason=f"no OpenGL context: {GL_REASON}")
 def test_bench_distils_variants_from_the_stored_stages_and_writes_the_front(small_run):
     assert main(["bench", str(small_run), "--resolutions", "96x54,160x90", "--variants", "mlp-8,faces-half",
                  "--target-ms", "1000", "--quiet"]) == 0

@@ -39,6 +39,7 @@ def test_each_texel_is_the_model_at_its_centre_with_the_mean_view_of_its_pixels(
     np.testing.assert_allclose(rgb[j, i], expected[0].numpy(), atol=1e-6)
 
 
+@pytest.mark.gl
 def test_the_plain_shader_plays_the_texture_bilinearly_like_torch():
     moderngl, ctx = gl_context()
     h, w, res = 5, 7, 64

@@ -10,12 +10,8 @@ import pytest
 import torch
 
 from neuras_distill.geometry.mesh import MeshData
-from neuras_distill.playback.context import gl_available
 from neuras_distill.playback.projection import mvp_for, near_far_for, projection_matrix, view_matrix
 from neuras_distill.render.cameras import Cameras, look_at
-
-_GL_OK, _GL_REASON = gl_available()
-gl = [pytest.mark.gl, pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")]
 
 
 def _odd_cameras() -> Cameras:
@@ -68,7 +64,6 @@ def test_near_far_is_tight_and_contains_the_box():
 # ---------------------------------------------------------------------------------------------- G-buffer
 @pytest.mark.parametrize("i", [0, 1])
 @pytest.mark.gl
-@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
 def test_tiny_triangle_covers_exactly_its_pixel(i):
     from neuras_distill.playback.rasterize import rasterize_gbuffer
 
@@ -87,7 +82,6 @@ def test_tiny_triangle_covers_exactly_its_pixel(i):
 
 
 @pytest.mark.gl
-@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
 def test_gbuffer_matches_analytic_ray_plane_intersection():
     from neuras_distill.playback.rasterize import rasterize_gbuffer
 
@@ -130,7 +124,6 @@ def _quad(z, half, cx=0.0, cy=0.0):
 
 @pytest.mark.parametrize("near_first", [False, True])
 @pytest.mark.gl
-@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
 def test_face_id_nearest_wins_and_empty_is_minus_one(near_first):
     from neuras_distill.playback.rasterize import rasterize_gbuffer
 
@@ -191,7 +184,6 @@ def _front_camera(w=80, h=60):
 
 
 @pytest.mark.gl
-@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
 def test_bundle_renderer_texel_fetch_colours_exact():
     from neuras_distill.playback.rasterize import rasterize_gbuffer
     from neuras_distill.playback.renderer import BundleRenderer
@@ -219,7 +211,6 @@ def test_bundle_renderer_texel_fetch_colours_exact():
 
 
 @pytest.mark.gl
-@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
 def test_bundle_renderer_camera_uniform_and_timing():
     from neuras_distill.playback.renderer import BundleRenderer
 
@@ -244,7 +235,6 @@ void main() { f_color = vec4(abs(u_cam_pos) / 4.0, 1.0); }
 
 
 @pytest.mark.gl
-@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
 def test_render_orbit_frames_writes_pngs(tmp_path):
     from PIL import Image
 
@@ -288,7 +278,6 @@ def test_playback_modules_import_without_moderngl():
 
 
 @pytest.mark.gl
-@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
 def test_render_orbit_frames_cli_form_frames_the_mesh(tmp_path):
     from neuras_distill.playback.rasterize import rasterize_gbuffer
     from neuras_distill.playback.viewer import orbit_cameras_for, render_orbit_frames
@@ -302,7 +291,6 @@ def test_render_orbit_frames_cli_form_frames_the_mesh(tmp_path):
 
 
 @pytest.mark.gl
-@pytest.mark.skipif(not _GL_OK, reason=f"no OpenGL context: {_GL_REASON}")
 def test_back_faces_are_culled_only_when_asked():
     from neuras_distill.playback.rasterize import rasterize_gbuffer
 

@@ -14,10 +14,8 @@ import time
 
 import pytest
 
-from neuras_distill.playback.context import gl_available
 
-GL_OK, GL_REASON = gl_available()
-pytestmark = [pytest.mark.gl, pytest.mark.skipif(not GL_OK, reason=f"no OpenGL context: {GL_REASON}")]
+pytestmark = [pytest.mark.gl]
 
 #: Small enough for the suite, long enough in training (a few seconds) to be killed in it.
 CONFIG = """

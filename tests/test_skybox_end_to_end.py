@@ -14,10 +14,8 @@ import neuras_distill as nd
 from neuras_distill.bake.bundle import load_bundle
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.analytic import SphereSDF
-from neuras_distill.playback.context import gl_available
 
-GL_OK, GL_REASON = gl_available()
-pytestmark = [pytest.mark.gl, pytest.mark.skipif(not GL_OK, reason=f"no OpenGL context: {GL_REASON}")]
+pytestmark = [pytest.mark.gl]
 
 FAR = (3000.0, -2000.0, 50.0)
 

@@ -2,7 +2,7 @@
 
 Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward pass:
 
-- bilinear corners exactly as ``distill/texture.py`` (x = u*W - 0.5, floor, clamped corners, weights
+- bilinear corners exactly as ``neural/texture.py`` (x = u*W - 0.5, floor, clamped corners, weights
   (1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy), blended in the order c00, c10, c01, c11;
 - ``u_index`` (R16UI, H x W, CLAMP_TO_EDGE): code index per texel; the four corner indices come from one
   ``textureGather`` at the centre of the 2x2 cell (a quarter of the fetches of four texelFetch calls, which

@@ -1,8 +1,9 @@
 """G-buffer rasterization of a mesh for a set of cameras (this module owns ``rasterize_gbuffer``).
 
 One framebuffer with three colour attachments -- RG32F uv, R32I face id, R32F view depth -- and a 24-bit depth
-buffer; depth test on (GL_LESS, first drawn wins ties), back-face culling off (meshes may be open), one sample
-at each pixel centre (no MSAA). The vertex stage is ``shaders.VERTEX_SHADER``, the same one playback uses, and
+buffer; depth test on (GL_LESS, first drawn wins ties), back faces culled unless ``cull_back_faces=False``
+(on by default, as ``geometry.cull_back_faces``; see :func:`set_raster_state`), one sample at each pixel
+centre (no MSAA). The vertex stage is ``shaders.VERTEX_SHADER``, the same one playback uses, and
 the projection is ``projection.mvp_for`` (the pixel-centre convention of ``Cameras.rays``). Read-back flips the
 rows so row 0 is the top of the image.
 

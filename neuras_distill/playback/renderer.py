@@ -51,7 +51,8 @@ class BundleRenderer:
 
     Args:
         bundle: object with ``mesh`` (MeshData with uvs), ``textures`` (dict uniform name -> np array),
-            ``fragment_shader`` (GLSL 330 source; see shaders.py for its interface), ``background_color`` (3 floats).
+            ``fragment_shader`` (GLSL source, ``#version 400 core`` from bake/glsl.py; see shaders.py for its
+            interface), ``background_color`` (3 floats).
         ctx: moderngl context (default :func:`context.get_context`).
         silhouette_blend: run the soft-silhouette pass (``silhouette.py``) after the scene; default: the
             bundle manifest's ``silhouette_blend`` (bundles from before it have none and play without).
