@@ -13,8 +13,8 @@ import torch
 import neuras_distill as nd
 from neuras_distill.bake.bundle import load_bundle
 from neuras_distill.errors import BadInputError
-from neuras_distill.fields.analytic import SphereSDF
 from neuras_distill.playback.context import gl_available
+from neuras_distill.scenes.analytic import SphereSDF
 
 GL_OK, GL_REASON = gl_available()
 pytestmark = [pytest.mark.gl, pytest.mark.skipif(not GL_OK, reason=f"no OpenGL context: {GL_REASON}")]
