@@ -28,7 +28,7 @@ class SyntheticAdapter:
         return MAGIC in head
 
     def load(self, path, kind: str | None = None, **options):
-        from neuras_distill.fields.synthetic import make_scene
+        from neuras_distill.scenes.synthetic import make_scene
 
         text = str(path)
         if text.startswith("synthetic:"):

@@ -19,10 +19,10 @@ import argparse
 import numpy as np
 import torch
 
-from neuras_distill.fields.gradient_ball import make_gradient_ball
 from neuras_distill.metrics import interior_mask, psnr, silhouette_band
 from neuras_distill.pipeline import evaluate
 from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.gradient_ball import make_gradient_ball
 
 
 def sphere_hits(origins: np.ndarray, dirs: np.ndarray, centre: np.ndarray, radius: float):

@@ -1,4 +1,4 @@
-"""Throughput of the pure-PyTorch Instant-NGP field pieces (neuras_distill.fields.tcnn), forward only.
+"""Throughput of the pure-PyTorch Instant-NGP field pieces (neuras_distill.components.tcnn), forward only.
 
 For the two Instant-NGP default grids (L16 F2 T19 and L8 F4 T19, N_min 16, aabb_scale 1) it times
 (a) HashGridEncoding alone and (b) the whole default NeRF network: grid -> density MLP (64 wide, 1 hidden,
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from neuras_distill.fields.tcnn import (
+from neuras_distill.components.tcnn import (
     HashGridConfig,
     HashGridEncoding,
     TcnnMLP,

@@ -18,7 +18,7 @@ _LAZY = {
     "load_config": ("neuras_distill.config", "load_config"),
     "load_field": ("neuras_distill.registry", "load_field"),
     "load_bundle": ("neuras_distill.bake.bundle", "load_bundle"),
-    "make_scene": ("neuras_distill.fields.synthetic", "make_scene"),
+    "make_scene": ("neuras_distill.scenes.synthetic", "make_scene"),
 }
 
 __all__ = ["__version__", *_LAZY]

@@ -155,7 +155,7 @@ def _config_from_args(args):
 
 
 def _scene_inputs(args, name: str) -> tuple:
-    from .fields.synthetic import make_scene
+    from .scenes.synthetic import make_scene
 
     if name == "street" and args.preset is None and args.config is None:
         args.preset = "street"          # its preset fits the scene to this machine (configs/street.toml)

@@ -48,7 +48,7 @@ about 35.5 dB against the scene on two held-out views, a soft surface, hundreds 
 occupied density-grid cells out to the walls of the cube.
 
 ``tests/data/ngp/ball.ingp`` is the ``gradient-ball`` scene (a density ball with a soft fringe, a colour
-gradient and its own helix of cameras, :mod:`neuras_distill.fields.gradient_ball`), made with
+gradient and its own helix of cameras, :mod:`neuras_distill.scenes.gradient_ball`), made with
 ``--scene gradient-ball --out tests/data/ngp/ball.ingp --minutes 4 --seed 0 --max-bytes 2000000`` on a
 shared 2-core machine: 429 steps in 4.0 min (repeated bit-identically with ``--steps 429``), 38.7 / 39.8 dB
 against the scene on the two held-out views, 1.18 MiB (the first write, with density-grid values below 1e-4
@@ -83,14 +83,14 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
+from neuras_distill.components.tcnn import (HashGridConfig, HashGridEncoding, TcnnMLP,  # noqa: E402
+                                            ngp_per_level_scale, sh_encode_deg4)
 from neuras_distill.fields.ngp import NgpField  # noqa: E402
 from neuras_distill.fields.ngp_frames import NgpFrame  # noqa: E402
 from neuras_distill.fields.ngp_snapshot import (NgpCamera, build_snapshot_tree, read_snapshot,  # noqa: E402
                                                 write_snapshot)
-from neuras_distill.fields.synthetic import make_scene  # noqa: E402
-from neuras_distill.fields.tcnn import (HashGridConfig, HashGridEncoding, TcnnMLP,  # noqa: E402
-                                        ngp_per_level_scale, sh_encode_deg4)
 from neuras_distill.render.volume import VolumeRenderer  # noqa: E402
+from neuras_distill.scenes.synthetic import make_scene  # noqa: E402
 
 DEFAULT_OUT = ROOT / "tests" / "data" / "ngp" / "bunny.ingp"
 MAX_FILE_BYTES = 2 * 1024 * 1024

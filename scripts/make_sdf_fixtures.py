@@ -38,10 +38,10 @@ import torch.nn.functional as F
 from torch import nn
 from torch.nn.utils.parametrizations import weight_norm
 
+from neuras_distill.components.tcnn import HashGridConfig, HashGridEncoding, TcnnMLP, sh_encode_deg4
 from neuras_distill.fields.neus import positional_encoding
 from neuras_distill.fields.neus_cameras import write_neus_npz
-from neuras_distill.fields.synthetic import make_scene
-from neuras_distill.fields.tcnn import HashGridConfig, HashGridEncoding, TcnnMLP, sh_encode_deg4
+from neuras_distill.scenes.synthetic import make_scene
 
 OUT = Path(__file__).resolve().parent.parent / "tests" / "data" / "sdf"
 IMAGE_SIZE = 400

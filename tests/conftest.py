@@ -69,7 +69,7 @@ def small_run(tmp_path_factory):
     import torch
 
     import neuras_distill as nd
-    from neuras_distill.fields.analytic import SphereSDF
+    from neuras_distill.scenes.analytic import SphereSDF
 
     old = torch.get_num_threads()
     torch.set_num_threads(2)

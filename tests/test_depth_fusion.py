@@ -106,7 +106,7 @@ def _extract(field, monkeypatch, fail_first_unwrap: bool):
 
 
 def test_a_level_set_that_unwraps_is_kept(monkeypatch):
-    from neuras_distill.fields.analytic import SphereSDF
+    from neuras_distill.scenes.analytic import SphereSDF
 
     mesh, calls = _extract(SphereSDF(radius=RADIUS).density(), monkeypatch, fail_first_unwrap=False)
     assert len(calls) == 1 and "mc_surface_from" not in mesh.stats

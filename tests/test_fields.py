@@ -1,4 +1,5 @@
-"""Tests for neuras_distill.fields: check_field, analytic SDFs, SDF -> density, the bunny scene and its cache."""
+"""Tests for neuras_distill.fields (check_field) and neuras_distill.scenes (analytic SDFs, SDF -> density, the
+bunny scene and its cache)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,9 @@ import pytest
 import torch
 
 from neuras_distill.errors import BadInputError
-from neuras_distill.fields.analytic import BoxSDF, SDFToDensityField, SphereSDF, TorusSDF, laplace_density
 from neuras_distill.fields.base import Field, check_field, evaluate_chunked
-from neuras_distill.fields.synthetic import SCENES, BunnyField, make_scene
+from neuras_distill.scenes.analytic import BoxSDF, SDFToDensityField, SphereSDF, TorusSDF, laplace_density
+from neuras_distill.scenes.synthetic import SCENES, BunnyField, make_scene
 
 
 class _Good:

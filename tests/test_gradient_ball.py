@@ -1,4 +1,4 @@
-"""Tests for the ``gradient-ball`` scene (neuras_distill.fields.gradient_ball): its soft fringe as the volume
+"""Tests for the ``gradient-ball`` scene (neuras_distill.scenes.gradient_ball): its soft fringe as the volume
 renderer sees it, the smoothness of its colour, its cameras and its place in the scene registry."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import torch
 from neuras_distill.cli import build_parser
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.base import check_field
-from neuras_distill.fields.gradient_ball import HELD_OUT_DIP_DEG, GradientBallField
-from neuras_distill.fields.synthetic import SCENES, make_scene
 from neuras_distill.registry import load_field
 from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.gradient_ball import HELD_OUT_DIP_DEG, GradientBallField
+from neuras_distill.scenes.synthetic import SCENES, make_scene
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

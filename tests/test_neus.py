@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 import torch
 
+from neuras_distill.components.tcnn import HashGridConfig, HashGridEncoding, TcnnMLP, mlp_param_count
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.base import check_field
 from neuras_distill.fields.checkpoint import check_finite, load_torch_checkpoint
 from neuras_distill.fields.neus import (HashGridNeuSField, NeuSField, infer_neus_architecture,
                                         load_neus_checkpoint)
 from neuras_distill.fields.neus_cameras import cameras_from_neus_npz, decompose_projection
-from neuras_distill.fields.tcnn import HashGridConfig, HashGridEncoding, TcnnMLP, mlp_param_count
 from neuras_distill_adapters.neus import NeuSAdapter
 
 DATA = Path(__file__).parent / "data" / "sdf"
@@ -245,7 +245,7 @@ def nsr_parts(seed: int = 0, radius: float = 1.2):
 
 def reference_nsr(parts, p: torch.Tensor, d: torch.Tensor, radius: float):
     grid, layers, tex = parts
-    from neuras_distill.fields.tcnn import sh_encode_deg4
+    from neuras_distill.components.tcnn import sh_encode_deg4
 
     p = p.clone().requires_grad_(True)
     x = (p + radius) / (2 * radius)
@@ -305,7 +305,7 @@ def test_hash_grid_neus_vanilla_texture_and_scale_mat():
         torch.testing.assert_close(sdf, 2.0 * ref.geometry(p), atol=1e-5, rtol=1e-5)
         torch.testing.assert_close(rgb, ref.radiance(p, d), atol=1e-6, rtol=1e-6)
     # the colour net by hand: [feature, SH(d), n] -> Linear, ReLU, Linear -> sigmoid
-    from neuras_distill.fields.tcnn import sh_encode_deg4
+    from neuras_distill.components.tcnn import sh_encode_deg4
 
     pr = p.clone().requires_grad_(True)
     out = ref.sdf_network(pr)
@@ -522,7 +522,7 @@ def test_laplace_density_option(tmp_path):
     x = _points(20, 9)
     sdf_field = _save_and_load(tmp_path, neus_ckpt())
     with torch.no_grad():
-        from neuras_distill.fields.analytic import laplace_density
+        from neuras_distill.scenes.analytic import laplace_density
 
         torch.testing.assert_close(field.geometry(x), laplace_density(sdf_field.geometry(x), 0.01))
     check_field(field)
@@ -535,8 +535,8 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def bunny_views():
-    from neuras_distill.fields.synthetic import make_scene
     from neuras_distill.render.volume import VolumeRenderer
+    from neuras_distill.scenes.synthetic import make_scene
 
     scene = make_scene("bunny", kind="sdf")
     cams = scene.default_cameras(48, 40, 40)

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 import torch
 
+from neuras_distill.components.tcnn import HashGridConfig, HashGridEncoding, mlp_param_count, sh_encode_deg4
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.ngp import NgpField
 from neuras_distill.fields.ngp_frames import NgpFrame
 from neuras_distill.fields.ngp_snapshot import (GRID_SIZE, NgpCamera, build_snapshot_tree, morton3d,
                                                 morton_to_xyz, read_snapshot, write_snapshot, xyz_to_morton)
-from neuras_distill.fields.tcnn import HashGridConfig, HashGridEncoding, mlp_param_count, sh_encode_deg4
 from neuras_distill.render.cameras import Cameras
 
 SMALL_GRID = HashGridConfig(n_levels=4, n_features_per_level=4, log2_hashmap_size=10, base_resolution=8,

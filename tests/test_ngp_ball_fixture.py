@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from neuras_distill.fields.synthetic import make_scene
 from neuras_distill.registry import load_field
+from neuras_distill.scenes.synthetic import make_scene
 
 BALL = Path(__file__).parent / "data" / "ngp" / "ball.ingp"
 

@@ -107,7 +107,7 @@ def test_a_changed_setting_recomputes_exactly_the_stages_downstream_of_it(tmp_pa
     import torch
 
     import neuras_distill as nd
-    from neuras_distill.fields.analytic import SphereSDF
+    from neuras_distill.scenes.analytic import SphereSDF
 
     field = SphereSDF(center=(0.0, 0.0, 0.0), radius=0.5)
     cams = field.default_cameras(10, 96, 96)

@@ -88,7 +88,7 @@ def test_digest_follows_exactly_the_inputs():
 
 
 def test_field_fingerprint_sees_parameters_and_source_digest():
-    from neuras_distill.fields.analytic import SphereSDF
+    from neuras_distill.scenes.analytic import SphereSDF
 
     assert field_fingerprint(SphereSDF(radius=0.5)) == field_fingerprint(SphereSDF(radius=0.5))
     assert field_fingerprint(SphereSDF(radius=0.5)) != field_fingerprint(SphereSDF(radius=0.51))

@@ -13,7 +13,7 @@ import torch
 import neuras_distill as nd
 from neuras_distill.bake.bundle import load_bundle
 from neuras_distill.errors import BadInputError
-from neuras_distill.fields.analytic import SphereSDF
+from neuras_distill.scenes.analytic import SphereSDF
 
 pytestmark = [pytest.mark.gl]
 

@@ -1,4 +1,4 @@
-"""Tests for the embedded street scene (neuras_distill.fields.street) and Cameras.lane_shifted.
+"""Tests for the embedded street scene (neuras_distill.scenes.street) and Cameras.lane_shifted.
 
 Tolerances used below:
 * SDF values at hand-computed points: 1e-4 m (float32 arithmetic on coordinates up to 40 m).
@@ -20,13 +20,13 @@ import torch
 import torch.nn.functional as F
 
 from neuras_distill.errors import BadInputError
-from neuras_distill.fields.analytic import SDFToDensityField
 from neuras_distill.fields.base import check_field
-from neuras_distill.fields.street import AABB, LANE_Y, StreetField, make_street
-from neuras_distill.fields.synthetic import SCENE_BETA, SCENES, make_scene
 from neuras_distill.pipeline.decisions import background_is_constant
 from neuras_distill.render.cameras import Cameras, look_at
 from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.analytic import SDFToDensityField
+from neuras_distill.scenes.street import AABB, LANE_Y, StreetField, make_street
+from neuras_distill.scenes.synthetic import SCENE_BETA, SCENES, make_scene
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -1,4 +1,4 @@
-"""The pure-PyTorch tiny-cuda-nn pieces (neuras_distill.fields.tcnn) against slow, literal references.
+"""The pure-PyTorch tiny-cuda-nn pieces (neuras_distill.components.tcnn) against slow, literal references.
 
 The hash-grid reference below is a plain-Python loop over points, levels and corners that follows
 checkpoint-formats.md §1.5 word by word (python ints, ``& 0xFFFFFFFF``, float32 via numpy / libm); the MLP
@@ -16,8 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from neuras_distill.errors import BadInputError
-from neuras_distill.fields.tcnn import (
+from neuras_distill.components.tcnn import (
     HashGridConfig,
     HashGridEncoding,
     TcnnMLP,
@@ -26,6 +25,7 @@ from neuras_distill.fields.tcnn import (
     ngp_per_level_scale,
     sh_encode_deg4,
 )
+from neuras_distill.errors import BadInputError
 
 f32 = np.float32
 
@@ -240,7 +240,7 @@ def test_tcnn_uint32_stride_quirk():
     # TCNN's uint32 stride wraps when R^3 >= 2^32 but R^2 <= T (R = 2048, T = 2^22): grid_index then takes the
     # dense index mod 2^32 (z drops out) instead of hashing. §1.5's "R^3 <= T" rule misses this; we follow
     # TCNN. Levels here: R = 1024 hashed, 2048 "dense" by the quirk, 4096 hashed.
-    from neuras_distill.fields.tcnn import _level_is_hashed
+    from neuras_distill.components.tcnn import _level_is_hashed
 
     assert _level_is_hashed(2048, 2**22) is False and tcnn_grid_index_is_dense(2048, 2**22)
     assert _level_is_hashed(2048, 2**21) is True

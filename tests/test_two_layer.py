@@ -200,8 +200,8 @@ def test_single_layer_is_bit_for_bit_the_pre_layer_output(monkeypatch):
     """(5) core_faces None: G-buffer and playback equal to the stages' sources before the layers, on a mesh
     with overlapping surfaces (both spheres as one layer) and on the bunny."""
     trimesh = pytest.importorskip("trimesh")
-    from neuras_distill.fields.synthetic import BUNNY_OBJ
     from neuras_distill.playback import rasterize, renderer
+    from neuras_distill.scenes.synthetic import BUNNY_OBJ
 
     bunny = trimesh.load(BUNNY_OBJ, force="mesh")
     b = MeshData(bunny.vertices, bunny.faces)

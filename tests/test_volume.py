@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import torch
 
-from neuras_distill.fields.analytic import SphereSDF
 from neuras_distill.render.cameras import Cameras, look_at
 from neuras_distill.render.compositing import (alpha_from_density, alpha_from_sdf, transmittance_from_alpha,
                                                transmittance_from_density, weights_from_density)
 from neuras_distill.render.occupancy import OccupancyGrid
 from neuras_distill.render.rays import ray_aabb
 from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.analytic import SphereSDF
 
 
 # ---------------------------------------------------------------------------------------------- A1

@@ -336,7 +336,7 @@ class NeuSField:
 
     def default_cameras(self, n: int, width: int = 512, height: int = 512):
         """An orbit (z up) framing the unit sphere NeuS trained in, for checkpoints without cameras."""
-        from .analytic import orbit_framing
+        from ..scenes.analytic import orbit_framing
 
         return orbit_framing(self.aabb, n, width, height, padding=1.0 / math.sqrt(3.0))
 
@@ -459,7 +459,7 @@ def nsr_model_config(config=None) -> dict:
 
 
 def _grid_config(enc: dict):
-    from .tcnn import HashGridConfig
+    from ..components.tcnn import HashGridConfig
 
     otype = str(enc.get("otype", "HashGrid"))
     require(otype in ("HashGrid", "ProgressiveBandHashGrid"),
@@ -472,7 +472,7 @@ def _grid_config(enc: dict):
 
 def _grid_alternatives(n: int, cfg) -> list[str]:
     """Simple configs (same N_min and per_level_scale) whose parameter count is n."""
-    from .tcnn import HashGridConfig
+    from ..components.tcnn import HashGridConfig
 
     hits = []
     for f in (2, 1, 4, 8):
@@ -568,7 +568,7 @@ class HashGridNeuSField:
 
     def _build_geometry(self, sd: dict, geo: dict, grid_params: torch.Tensor) -> None:
         """Hash grid + VanillaMLP (Linear, act, Linear, act, ..., Linear; keys ``layers.0``, ``.2``, ...)."""
-        from .tcnn import HashGridEncoding
+        from ..components.tcnn import HashGridEncoding
 
         mlp_cfg, gcfg = geo["mlp_network_config"], self.grid_config
         require(str(mlp_cfg.get("otype", "VanillaMLP")) == "VanillaMLP",
@@ -607,7 +607,7 @@ class HashGridNeuSField:
 
     def _build_texture(self, sd: dict, tex: dict) -> None:
         """``[feature, SH4(d), normal]`` -> TCNN MLP (``texture.network.params``) or VanillaMLP -> activation."""
-        from .tcnn import TcnnMLP, mlp_param_count
+        from ..components.tcnn import TcnnMLP, mlp_param_count
 
         dcfg = tex.get("dir_encoding_config", {})
         require(str(dcfg.get("otype")) == "SphericalHarmonics" and int(dcfg.get("degree", 4)) == 4,
@@ -683,7 +683,7 @@ class HashGridNeuSField:
 
     def default_cameras(self, n: int, width: int = 512, height: int = 512):
         """An orbit (z up) framing the object box, for checkpoints that come without cameras."""
-        from .analytic import orbit_framing
+        from ..scenes.analytic import orbit_framing
 
         return orbit_framing(self.aabb, n, width, height)
 
@@ -705,7 +705,7 @@ class HashGridNeuSField:
 
     def texture_network(self, features: torch.Tensor, dirs: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
         """instant-nsr-pl ``VolumeRadiance``: (N, F), unit dirs (N, 3), unit normals (N, 3) -> (N, 3)."""
-        from .tcnn import sh_encode_deg4
+        from ..components.tcnn import sh_encode_deg4
 
         h = torch.cat([features, sh_encode_deg4(dirs), normals], dim=-1)
         return self._color_act(self._tex_out_act(self._texture_mlp(h)))
@@ -784,7 +784,7 @@ def _read_cameras(cameras, width, height, nsr_cfg: dict | None):
 def with_density(field, density: str = "neus", beta: float | None = None):
     """``field`` itself (``density="neus"``) or its VolSDF Laplace density view (``"laplace"``, kind
     ``"density"``) with ``beta`` in world units (default ``1 / field.inv_s``: the NeuS ramp's width)."""
-    from .analytic import SDFToDensityField
+    from ..scenes.analytic import SDFToDensityField
 
     require(density in ("neus", "laplace"), f"density must be 'neus' or 'laplace', got {density!r}")
     if density == "neus":

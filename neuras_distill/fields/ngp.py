@@ -21,13 +21,13 @@ import math
 import numpy as np
 import torch
 
+from ..components.tcnn import HashGridEncoding, TcnnMLP, sh_encode_deg4
 from ..errors import require
 from ..render.cameras import Cameras
 from ..render.occupancy import OccupancyGrid
 from .base import evaluate_chunked
 from .ngp_frames import NgpFrame
 from .ngp_snapshot import GRID_SIZE, NgpSnapshot
-from .tcnn import HashGridEncoding, TcnnMLP, sh_encode_deg4
 
 #: instant-ngp's mesh export threshold on the raw density output h0 = ln σ_ngp (§1.10).
 NGP_MESH_LOG_DENSITY = 2.5

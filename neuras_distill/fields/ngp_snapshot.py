@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..components.tcnn import HashGridConfig, mlp_param_count, next_multiple
 from ..errors import BadInputError, require
-from .tcnn import HashGridConfig, mlp_param_count, next_multiple
 
 #: Decompressed size allowed per byte of file (a real snapshot inflates about 1-20x; a zip bomb far more).
 MAX_INFLATION = 256

@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 
 from ..errors import BadInputError
-from ..fields.analytic import SphereSDF
+from ..scenes.analytic import SphereSDF
 
 
 class _Base:
@@ -34,7 +34,7 @@ class _Base:
         return 0.2 + 0.6 * u
 
     def default_cameras(self, n: int, width: int = 512, height: int = 512):
-        from ..fields.analytic import orbit_framing
+        from ..scenes.analytic import orbit_framing
         return orbit_framing(self.aabb, n, width, height)
 
 

@@ -1,6 +1,6 @@
 """Resolve what ``neuras-distill check SOURCE`` names into a field and its cameras.
 
-SOURCE is ``synthetic:NAME`` (an embedded scene, :func:`~neuras_distill.fields.synthetic.make_scene`),
+SOURCE is ``synthetic:NAME`` (an embedded scene, :func:`~neuras_distill.scenes.synthetic.make_scene`),
 ``extreme:NAME`` (a constructed stiff field, :mod:`~neuras_distill.stability.extreme`), or a checkpoint path
 loaded exactly as ``from-ngp`` / ``from-sdf`` load it (adapter chosen by sniffing the content, or named).
 """
@@ -21,7 +21,7 @@ def load_source(source: str, *, kind: str | None = None, cameras_path: str | Non
     """(field, cameras or None) for a SOURCE string; ``options`` are adapter options (``from-ngp``/``from-sdf``)."""
     options = dict(options or {})
     if source.startswith("synthetic:"):
-        from ..fields.synthetic import make_scene
+        from ..scenes.synthetic import make_scene
         return make_scene(source.split(":", 1)[1], kind=kind), None
     if source.startswith("extreme:"):
         from .extreme import make_extreme

@@ -8,10 +8,10 @@ import math
 import pytest
 import torch
 
-from neuras_distill.fields.analytic import SphereSDF
 from neuras_distill.render.cameras import Cameras
 from neuras_distill.render.rays import ray_aabb
 from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.analytic import SphereSDF
 from neuras_distill.stability.probe import probe_field
 
 S = pytest.mark.stability

@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from neuras_distill.errors import BadInputError
-from neuras_distill.fields.analytic import SphereSDF
 from neuras_distill.geometry.cleanup import decimate, is_watertight
 from neuras_distill.geometry.marching import marching_cubes_field
+from neuras_distill.scenes.analytic import SphereSDF
 
 S = pytest.mark.stability
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from neuras_distill.fields.synthetic import make_scene
 from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.synthetic import make_scene
 from neuras_distill.stability.extreme import make_extreme
 from neuras_distill.stability.probe import OPACITY_TOL, probe_field
 from neuras_distill.stability.report import Item, StabilityReport
@@ -87,7 +87,7 @@ class NaNColour:
     kind = "sdf"
 
     def __init__(self):
-        from neuras_distill.fields.analytic import SphereSDF
+        from neuras_distill.scenes.analytic import SphereSDF
         self.s = SphereSDF(radius=0.5)
         self.aabb, self.inv_s = self.s.aabb, 1000.0
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neuras_distill.fields.analytic import SphereSDF
 from neuras_distill.geometry.cleanup import clean_mesh, decimate
 from neuras_distill.geometry.marching import marching_cubes_field
 from neuras_distill.geometry.unwrap import unwrap, uv_face_areas
 from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.analytic import SphereSDF
 from neuras_distill.stability.extreme import make_extreme
 from neuras_distill.stability.probe import probe_field
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from neuras_distill.fields.analytic import SphereSDF
 from neuras_distill.render.compositing import alpha_from_sdf, weights_from_alpha
 from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.analytic import SphereSDF
 from neuras_distill.stability.extreme import ScaledSDF
 from neuras_distill.stability.probe import probe_field
 

@@ -16,7 +16,7 @@ This module owns:
   Radiance: procedural albedo with fine detail times soft diffuse lighting, plus a Blinn-Phong lobe on
   the bunny (view-dependent), clipped to [0, 1].
 
-open3d is imported lazily inside :func:`_bake_bunny_sdf` only (it is the one place fields use it).
+open3d is imported lazily inside :func:`_bake_bunny_sdf` only (it is the one place the scenes use it).
 World frame of every scene: z up, units ~ the object's size (the bunny is 1 unit tall).
 """
 
@@ -126,7 +126,7 @@ def _scene_aabb(vertices: np.ndarray) -> np.ndarray:
 def _bake_bunny_sdf(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, cell: float,
                     shape: tuple[int, int, int]) -> np.ndarray:
     """Signed distance of the bunny mesh at the grid points, float32 array indexed [iz, iy, ix]."""
-    import open3d as o3d  # lazy: the only open3d use in fields/
+    import open3d as o3d  # lazy: the only open3d use in scenes/
 
     mesh = o3d.t.geometry.TriangleMesh()
     mesh.vertex.positions = o3d.core.Tensor(vertices.astype(np.float32))
