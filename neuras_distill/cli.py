@@ -157,10 +157,10 @@ def _config_from_args(args):
 def _scene_inputs(args, name: str) -> tuple:
     from .scenes.synthetic import make_scene
 
-    if name == "street" and args.preset is None and args.config is None:
-        args.preset = "street"          # its preset fits the scene to this machine (configs/street.toml)
-    cfg = _config_from_args(args)
-    return make_scene(name, kind=args.kind), None, cfg
+    field = make_scene(name, kind=args.kind)
+    if args.preset is None and args.config is None:
+        args.preset = getattr(field, "preset", None)     # a scene may name the preset that fits it (street)
+    return field, None, _config_from_args(args)
 
 
 def _parse_box(text: str):
@@ -295,11 +295,11 @@ def _check(args) -> int:
         options["config"] = args.model_config
     if args.density is not None:
         options["density"] = args.density
-    preset = args.preset
-    if args.source == "synthetic:street" and preset is None and args.config is None:
-        preset = "street"                 # as from-synthetic street
-    cfg = load_config(preset=preset, path=args.config)
     field, cameras = load_source(args.source, kind=args.kind, cameras_path=args.cameras, options=options)
+    preset = args.preset
+    if preset is None and args.config is None:
+        preset = getattr(field, "preset", None)          # as from-synthetic: the scene's own preset
+    cfg = load_config(preset=preset, path=args.config)
     report = probe_field(field, cameras, samples=args.samples, rays=args.rays, num_steps=cfg.teacher.num_steps,
                          grid_resolution=cfg.geometry.grid_resolution, source=args.source)
     print(report.to_table())

@@ -11,8 +11,22 @@ import tomllib
 from dataclasses import dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Literal, get_args
 
 from .errors import BadInputError, require
+
+#: A component the run decides on by measurement ("auto") or that the user forces.
+Mode = Literal["auto", "on", "off"]
+#: Where a fringed density field's core mesh sits (``GeometryConfig.core_level``).
+CoreLevel = Literal["colour", "surface"]
+#: Where a density field's mesh comes from (``GeometryConfig.surface``).
+SurfaceSource = Literal["auto", "depths"]
+
+
+def _require_choice(value, choices, name: str) -> None:
+    """One clear error when ``value`` is not one of the Literal alias ``choices``'s values."""
+    allowed = get_args(choices)
+    require(value in allowed, f"{name} must be {', '.join(allowed[:-1])} or {allowed[-1]}, got {value!r}")
 
 
 @dataclass
@@ -46,10 +60,10 @@ class GeometryConfig:
     cull_margin_deg: float = 15.0
     """Culling is conservative: faces seen by each training camera turned by this angle (degrees) about its
     look-at point are kept too, so held-out and user views a little outside the training range see no holes."""
-    enclose_fringe: str = "auto"
+    enclose_fringe: Mode = "auto"
     """"auto": move the iso-level outwards until the mesh covers the pixels where the field is partly opaque
     (its soft fringe), when the background is one constant colour; "on", "off"."""
-    core_level: str = "colour"
+    core_level: CoreLevel = "colour"
     """Where a fringed density field's core mesh sits (with a fringe shell): "colour" (where its opaque training
     rays terminate, ``geometry/colour_level.py``) or "surface" (the field's surface level, where the silhouette
     is). On the gradient ball at 1920x1080 (session 8) "colour" scored 37.6 dB in the interior against 35.1 and
@@ -57,8 +71,8 @@ class GeometryConfig:
     sees the colour through parallax that changes with the view (an oracle texture, the field's exact colour
     on a sphere, scores ~30 dB at the surface level's radius and ~41 dB at the colour level's), while the
     shell, which then draws the whole fade, is the coarser layer. The core's shader drops the view direction
-    when the field's own colour does not depend on it (``pipeline.run._resolve_core_view_dependence``)."""
-    surface: str = "auto"
+    when the field's own colour does not depend on it (``pipeline.choices.core_view_dependence``)."""
+    surface: SurfaceSource = "auto"
     """Where a density field's mesh comes from. "auto": its level set on the marching-cubes grid, meshed again
     from the surface depths fused over the training views when xatlas cannot unwrap that level set (a trained
     NeRF's foam interior). "depths": always from the fused depths; the stability check chooses it when parts of
@@ -97,11 +111,11 @@ class TextureConfig:
     num_layers: int = 2
     """Linear layers of the MLP shader (2: one hidden layer; measured 32.7 dB vs 32.5 dB for 3 layers on the
     demo, with the bundle ~20 % faster at 1080p on llvmpipe)."""
-    view_dependence: str = "auto"
+    view_dependence: Mode = "auto"
     """"auto" (measure the field and drop the view direction when colour does not depend on it), "on", "off"."""
     view_threshold: float = 0.01
     """Mean colour change (0..1) over view directions below which "auto" drops the view direction."""
-    soft_silhouettes: str = "auto"
+    soft_silhouettes: Mode = "auto"
     """The soft-silhouette pass (``playback/silhouette.py``): "auto" (when the field's fringe is at least 1.5
     pixels wide at the playing resolution), "on", "off". Measured with ``benchmarks/playback.py`` (alone, Mesa
     llvmpipe, 2 cores): NeuS fixture 32.97 -> 37.06 dB, instant-nsr-pl 31.03 -> 33.98, demo 35.30 -> 37.22,
@@ -112,7 +126,7 @@ class TextureConfig:
 
 @dataclass
 class SkyboxConfig:
-    mode: str = "auto"
+    mode: Mode = "auto"
     """"auto" (skyboxes when training rays miss the mesh and the field's background is not one constant
     colour), "on", "off"."""
     layers: int = 4
@@ -200,20 +214,16 @@ class DistillConfig:
                 f"pass --face-budget {MAX_UNWRAP_FACES} or less")
         require(g.grid_resolution >= 16, f"grid resolution must be at least 16, got {g.grid_resolution}")
         require(0.0 <= g.cull_margin_deg < 90.0, f"cull_margin_deg must be in 0..90 degrees, got {g.cull_margin_deg}")
-        require(self.texture.soft_silhouettes in ("auto", "on", "off"),
-                f"soft_silhouettes must be auto, on or off, got {self.texture.soft_silhouettes!r}")
-        require(g.surface in ("auto", "depths"), f"geometry.surface must be auto or depths, got {g.surface!r}")
-        require(g.core_level in ("surface", "colour"),
-                f"core_level must be surface or colour, got {g.core_level!r}")
-        require(g.enclose_fringe in ("auto", "on", "off"),
-                f"enclose_fringe must be auto, on or off, got {g.enclose_fringe!r}")
+        _require_choice(self.texture.soft_silhouettes, Mode, "soft_silhouettes")
+        _require_choice(g.surface, SurfaceSource, "geometry.surface")
+        _require_choice(g.core_level, CoreLevel, "core_level")
+        _require_choice(g.enclose_fringe, Mode, "enclose_fringe")
         require(t.resolution == 0 or 16 <= t.resolution <= 8192,
                 f"texture resolution must be 0 (automatic) or in 16..8192, got {t.resolution}")
         require(64 <= t.max_resolution <= 8192, f"max texture resolution must be in 64..8192, got {t.max_resolution}")
         require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
         require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
-        require(t.view_dependence in ("auto", "on", "off"),
-                f"view_dependence must be auto, on or off, got {t.view_dependence!r}")
+        _require_choice(t.view_dependence, Mode, "view_dependence")
         require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
         require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")
         require(tr.time_budget_s >= 0, f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
@@ -223,7 +233,7 @@ class DistillConfig:
                 "image widths must be at least 16 (eval width 0: the cameras' own size)")
         require(self.cameras.num_views >= 2, "need at least 2 views (some train, some held out)")
         sb = self.skybox
-        require(sb.mode in ("auto", "on", "off"), f"skybox mode must be auto, on or off, got {sb.mode!r}")
+        _require_choice(sb.mode, Mode, "skybox mode")
         require(1 <= sb.layers <= 16, f"skybox layer count must be in 1..16, got {sb.layers}")
         require(sb.near >= 0 and sb.far >= 0, f"skybox distances must be positive (0 = automatic), got "
                                               f"near={sb.near}, far={sb.far}")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from neuras_distill.bake.bundle import Bundle, bake, load_bundle
+from neuras_distill.bake.bundle import bake, load_bundle
 from neuras_distill.bake.glsl import generate_fragment_shader, glsl_float
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.errors import BadInputError

@@ -5,7 +5,7 @@ import numpy as np
 import torch
 
 from neuras_distill.geometry.depth_fusion import fused_depth_sdf
-from neuras_distill.geometry.grid import grid_spec, sample_grid
+from neuras_distill.geometry.grid import grid_spec
 from neuras_distill.geometry.marching import marching_cubes_field, marching_cubes_grid, mesh_handles
 
 FOAM_HANDLES = 100          # the foam ball's level set has far more

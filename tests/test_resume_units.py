@@ -4,7 +4,6 @@ they are whole, and the run folder finds what a killed run left."""
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest

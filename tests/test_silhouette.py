@@ -59,13 +59,15 @@ def test_the_gl_pass_is_its_numpy_mirror_and_changes_only_edges(monkeypatch, max
 def test_the_pass_runs_where_the_fields_edges_are_soft_at_the_playing_resolution():
     from types import SimpleNamespace
 
-    from neuras_distill.pipeline.run import _resolve_silhouette_blend
+    from neuras_distill.pipeline.choices import Decisions, silhouette_blend
 
     train, test = SimpleNamespace(width=640), SimpleNamespace(width=1920, height=1080)
-    left_out: list = []
-    assert _resolve_silhouette_blend("auto", 1.5, train, test, left_out) and not left_out   # 4.5 px at 1080p
-    assert not _resolve_silhouette_blend("auto", 0.4, train, SimpleNamespace(width=640, height=360), left_out)
+    record = Decisions()
+    assert silhouette_blend("auto", 1.5, train, test, record) and not record.left_out()   # 4.5 px at 1080p
+    assert record.items[-1].kept and record.items[-1].measured["edge_pixels"] == 4.5
+    assert not silhouette_blend("auto", 0.4, train, SimpleNamespace(width=640, height=360), record)
+    left_out = record.left_out()
     assert left_out[-1]["component"] == "soft-silhouette pass" and "0.4 pixels" in left_out[-1]["reason"]
-    assert not _resolve_silhouette_blend("off", 9.0, train, test, left_out)
-    assert left_out[-1]["reason"] == "turned off by configuration"
-    assert _resolve_silhouette_blend("on", 0.0, train, test, [])
+    assert not silhouette_blend("off", 9.0, train, test, record)
+    assert record.left_out()[-1]["reason"] == "turned off by configuration"
+    assert silhouette_blend("on", 0.0, train, test, Decisions())

@@ -11,7 +11,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from neuras_distill.bake.bundle import bake, load_bundle
 from neuras_distill.errors import BadInputError
@@ -371,13 +370,13 @@ def test_a_shader_per_layer_picks_by_the_layer_column():
 
 
 def test_the_core_drops_the_view_direction_only_at_the_colour_level_of_a_view_independent_field():
-    """``run._resolve_core_view_dependence``: a two-layer mesh whose core sits at the colour level of a field
+    """``choices.core_view_dependence``: a two-layer mesh whose core sits at the colour level of a field
     whose colour does not change with the view gets a core shader without the direction (and says so in
     ``left_out``); a view-dependent field, a surface-level core, a one-layer mesh or a forced setting keep it."""
     import torch
 
     from neuras_distill.config import DistillConfig, load_config
-    from neuras_distill.pipeline.run import _resolve_core_view_dependence
+    from neuras_distill.pipeline.choices import Decisions, core_view_dependence
 
     class Field:
         def __init__(self, glossy: bool):
@@ -389,18 +388,18 @@ def test_the_core_drops_the_view_direction_only_at_the_colour_level_of_a_view_in
     mesh = two_spheres()
     mesh.stats = {"mc_colour_level_used": True}
     cfg = DistillConfig()
-    left_out: list = []
-    assert _resolve_core_view_dependence(Field(False), mesh, cfg, True, left_out) is False
-    assert [e["component"] for e in left_out] == ["view direction of the core's shader"]
-    left_out.clear()
-    assert _resolve_core_view_dependence(Field(True), mesh, cfg, True, left_out) is None and not left_out
-    assert _resolve_core_view_dependence(Field(False), mesh, cfg, False, left_out) is None
+    record = Decisions()
+    assert core_view_dependence(Field(False), mesh, cfg, True, record) is False
+    assert [e["component"] for e in record.left_out()] == ["view direction of the core's shader"]
+    record = Decisions()
+    assert core_view_dependence(Field(True), mesh, cfg, True, record) is None and not record.items
+    assert core_view_dependence(Field(False), mesh, cfg, False, record) is None
     surface = two_spheres()
     surface.stats = {"mc_colour_level_used": False}
-    assert _resolve_core_view_dependence(Field(False), surface, cfg, True, left_out) is None
+    assert core_view_dependence(Field(False), surface, cfg, True, record) is None
     one = two_spheres(False)
     one.stats = {"mc_colour_level_used": True}
-    assert _resolve_core_view_dependence(Field(False), one, cfg, True, left_out) is None
+    assert core_view_dependence(Field(False), one, cfg, True, record) is None
     forced = load_config(overrides={"texture": {"view_dependence": "on"}})
-    assert _resolve_core_view_dependence(Field(False), mesh, forced, True, left_out) is None
-    assert not left_out
+    assert core_view_dependence(Field(False), mesh, forced, True, record) is None
+    assert not record.items

@@ -244,7 +244,8 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
     """Turn a trained ``NeuralTextureModel`` and its mesh into a :class:`Bundle`.
 
     Codes never referenced by the index map are dropped (``manifest["num_codes"]`` is the kept count,
-    ``num_codes_trained`` the codebook size during training). ``skybox``: a trained :class:`SkyboxModel` to
+    ``num_codes_trained`` the codebook size during training); when ``extra_manifest`` carries the run's
+    ``left_out`` list, the dropped codes are added to it. ``skybox``: a trained :class:`SkyboxModel` to
     bake alongside (its own codebook, pruned the same way, and the ``sky.frag`` pass). ``origin``: (3,)
     float64 world position the mesh vertices are relative to (default the origin).
     """
@@ -285,6 +286,11 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
                                   float16_feature_bytes=float16_feature_nbytes(sky_h, sky_w, skybox.feature_dim))
     manifest.update(extra_manifest or {})
     manifest["core_faces"] = core_faces                 # the mesh's, whatever extra_manifest says
+    if "left_out" in manifest and model.use_vq and k < model.num_codes:     # the bake's own leaving out
+        manifest["left_out"] = [*manifest["left_out"], {
+            "component": "unused codes",
+            "reason": f"{model.num_codes - k} of {model.num_codes} codebook entries are used by no texel and "
+                      "were dropped"}]
     return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs, core_faces=core_faces),
                   textures=textures,
                   fragment_shader=generate_fragment_shader(model, codes_per_row=per_row),

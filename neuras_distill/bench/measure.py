@@ -15,11 +15,15 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import metrics
 from ..flip_metric import flip
+
+if TYPE_CHECKING:
+    from ..fields.base import Field
 
 
 @dataclass
@@ -45,7 +49,7 @@ def _spread_ms(seconds) -> dict:
             "p90_ms": float(np.percentile(ms, 90)), "frames": int(ms.size)}
 
 
-def render_reference(field, cameras, steps: int, progress=None) -> Reference:
+def render_reference(field: Field, cameras, steps: int, progress=None) -> Reference:
     """The field at ``steps`` per box diagonal on every camera (not timed)."""
     from ..render.volume import VolumeRenderer
 
@@ -58,7 +62,7 @@ def render_reference(field, cameras, steps: int, progress=None) -> Reference:
     return Reference(int(steps), images)
 
 
-def field_points(field, cameras, steps: list[int], reference: Reference, progress=None) -> list[dict]:
+def field_points(field: Field, cameras, steps: list[int], reference: Reference, progress=None) -> list[dict]:
     """The field marched with each of ``steps``: scored and timed on every camera. One warm-up frame per step
     count, then the step counts interleaved view by view, so that a drift of the machine's speed (other
     processes, the CPU's clock) falls on every point alike instead of on whichever ran last."""

@@ -44,6 +44,10 @@ class Field(Protocol):
         surface_level: float, density fields: σ at which the mesh is extracted (default: adaptive level).
         occupancy_grid(resolution): an :class:`~neuras_distill.render.occupancy.OccupancyGrid` over ``aabb``
             containing every cell where the field is non-zero (the renderer skips the rest), or None.
+        default_cameras(n, width, height[, held_out_every]): Cameras framing the scene, when none are given.
+        lane_shifts: sideways camera shifts (world units) the evaluation extrapolates to (driving scenes).
+        preset: name of the ``configs/`` preset that fits the scene (used when no preset or config is given).
+        source_digest: str identifying the checkpoint and load options (work-area keys; else the state).
     """
 
     kind: str

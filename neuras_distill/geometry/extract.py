@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +22,9 @@ from .marching import marching_cubes_field
 from .mesh import MeshData
 from .unwrap import MAX_UNWRAP_FACES, UnwrapFailed, unwrap
 from .visibility import cull_unseen_faces, missed_opaque_fraction
+
+if TYPE_CHECKING:
+    from ..fields.base import Field
 
 #: A two-layer mesh's shell (``MeshData.core_faces``) gets this share of the face budget (it only draws a
 #: soft fringe's fade outside the core's silhouette) ...
@@ -83,7 +87,7 @@ def _json_value(o):
     return o.item() if isinstance(o, np.generic) else str(o)
 
 
-def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
+def extract_mesh(field: Field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
                  texture_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                  density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
                  choose_resolution=None, cull_margin_deg: float = 15.0, field_opacity=None,
@@ -138,7 +142,7 @@ def extract_mesh(field, train_cameras, *, grid_resolution: int = 192, face_budge
     return mesh
 
 
-def extract_surface(field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
+def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
                     trial_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                     density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
                     cull_margin_deg: float = 15.0, field_opacity=None, field_depth=None,

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Sequence
+from typing import Sequence, TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage
@@ -53,6 +53,9 @@ from ..errors import BadInputError
 from .colour_level import colour_level
 from .grid import field_outside_value, grid_spec, sample_grid
 from .mesh import MeshData
+
+if TYPE_CHECKING:
+    from ..fields.base import Field
 
 #: Default opacity a ray should collect over one voxel-length step of material for the density level.
 DENSITY_STEP_ALPHA = 0.5
@@ -219,7 +222,7 @@ def mesh_handles(mesh: MeshData) -> int:
     return int(max(0, round(components - chi / 2)))
 
 
-def marching_cubes_field(field, resolution: int | Sequence[int], level: float | None = None, *,
+def marching_cubes_field(field: Field, resolution: int | Sequence[int], level: float | None = None, *,
                          density_step: float | None = None, chunk_points: int = 1 << 20,
                          fringe_check=None, fringe_tolerance: float = FRINGE_MISS_TOLERANCE,
                          depth_fusion=None, termination=None) -> MeshData:

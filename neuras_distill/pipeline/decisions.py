@@ -7,13 +7,18 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import torch
 
 from ..geometry.mesh import MeshData
 
+if TYPE_CHECKING:
+    from ..fields.base import Field
 
-def measure_view_dependence(field, mesh: MeshData, *, num_points: int = 2048, num_dirs: int = 8,
+
+def measure_view_dependence(field: Field, mesh: MeshData, *, num_points: int = 2048, num_dirs: int = 8,
                             seed: int = 0) -> float:
     """Mean over surface points and channels of the standard deviation of colour (0..1) across ``num_dirs``
     random view directions that reach the point from outside (the hemisphere around the face normal)."""

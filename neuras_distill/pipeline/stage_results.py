@@ -1,5 +1,10 @@
-"""What the expensive stages hand on, as small typed results that the work area stores and reuses
-(:class:`pipeline.cache.StageCache`): each has ``save(folder)`` and ``load(folder)``.
+"""What the stages hand on, as small typed results. The expensive ones are stored and reused by the work
+area (:class:`pipeline.cache.StageCache`): each of those has ``save(folder)`` and ``load(folder)``.
+
+Flow (``pipeline.run``): cameras -> :class:`CameraSplit` -> teacher -> :class:`TeacherResult` and
+:class:`TrainingPlan` -> geometry -> :class:`GeometryResult` and :class:`ShaderInputs` -> gbuffer ->
+:class:`TrainingViews` and :class:`Backdrop` -> distill -> :class:`DistilledModel` -> bake -> ``Bundle`` ->
+evaluate -> :class:`Evaluation` (with the held-out :class:`FieldViews`) -> the report.
 
 Frames: teacher and held-out renders are per camera, row 0 at the top of the image; meshes are in world
 coordinates; G-buffers are rasterized relative to the run's origin (``pipeline.run``).
@@ -7,15 +12,27 @@ coordinates; G-buffers are rasterized relative to the run's origin (``pipeline.r
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from ..geometry.mesh import MeshData
 from ..playback.gbuffer import GBuffer
+from ..render.cameras import Cameras
 from .cache import load_arrays, load_json, save_arrays, save_json
+
+
+@dataclass
+class CameraSplit:
+    """The run's cameras: ``train`` at the teacher's width, ``test`` (held out) at the evaluation's, and the
+    skybox layers planned from all camera centres (None when skyboxes are off)."""
+
+    train: Cameras
+    test: Cameras
+    sky_layers: Any = None
 
 
 @dataclass
@@ -132,3 +149,110 @@ class TrainedModel:
     def load(cls, folder: Path) -> "TrainedModel":
         state = torch.load(folder / "model.pt", map_location="cpu", weights_only=True)
         return cls(state["model"], state["skybox"], state["touched"], load_json(folder, "train_log.json"))
+
+
+@dataclass
+class TrainingPlan:
+    """How long training runs. Known after the teacher: ``time_budget_s`` (None: configured steps run to the
+    end), ``samples_per_step`` (pixels per batch), measured ``steps_per_second`` (None with configured steps),
+    ``configured_steps`` and ``max_steps`` (what the budget affords). Fixed after the geometry
+    (``stages.geometry.fix_steps``): ``steps``, ``needed_steps`` (for the target samples per used texel),
+    ``used_texels`` and the ``reason`` the report gives."""
+
+    time_budget_s: float | None
+    samples_per_step: int
+    steps_per_second: float | None
+    configured_steps: int | None
+    max_steps: int = 0
+    steps: int | None = None
+    needed_steps: int | None = None
+    used_texels: int | None = None
+    reason: str | None = None
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+    def save(self, folder: Path) -> None:
+        save_json(folder, "plan.json", self.to_json())
+
+    @classmethod
+    def load(cls, folder: Path) -> "TrainingPlan":
+        stored = load_json(folder, "plan.json")
+        return cls(**{f.name: stored[f.name] for f in fields(cls) if f.name in stored})
+
+
+@dataclass
+class ShaderInputs:
+    """What the shader takes besides the features: ``use_viewdir`` (with the ``view_spread`` measured, None when
+    not measured), ``use_facing`` (|n . d|, for a fringe shell) and ``core_viewdir`` (the core shader's own
+    choice on a two-layer mesh; None: as ``use_viewdir``)."""
+
+    use_viewdir: bool
+    view_spread: float | None
+    use_facing: bool
+    core_viewdir: bool | None
+
+
+@dataclass
+class TrainingViews:
+    """The training views as the distillation sees them: ``origin`` ((3,) float64 world position everything
+    below is relative to), ``mesh`` (the unwrapped mesh relative to it, float32), ``gbuffer`` (per view
+    (N, H, W, ...) uv, face_id, coverage, depth, normal) and ``dirs`` ((N, H, W, 3 or 4) view inputs:
+    world ray directions, plus the facing cosine when the shader takes it)."""
+
+    origin: np.ndarray
+    mesh: MeshData
+    gbuffer: GBuffer
+    dirs: Any
+
+
+@dataclass
+class Backdrop:
+    """What the bundle shows where the mesh is not: the trained-to-be ``skybox`` (``SkyboxModel`` or None),
+    the training cameras' positions relative to its layers (``sky_origins``, (N, 3), None without skyboxes),
+    the ``reason`` of that choice, and the ``clear`` colour ((3,) float32 tensor)."""
+
+    skybox: Any
+    sky_origins: np.ndarray | None
+    reason: str
+    clear: torch.Tensor
+
+
+@dataclass
+class DistilledModel:
+    """The distill stage's outcome: the trained ``model`` (``NeuralTextureModel``, eval mode), its ``skybox``
+    (or None) and the training log (``TrainLog.as_dict()``)."""
+
+    model: Any
+    skybox: Any
+    log: dict
+
+
+@dataclass
+class Evaluation:
+    """The bundle measured against the field on the held-out cameras.
+
+    Attributes:
+        field_views: the field's held-out renders and their frame times; bundle_images: (H, W, 3) per view.
+        quality: ``evaluate.compare`` (psnr, ssim, per view); parity: GL vs torch PSNR on view 0.
+        fidelity: ``evaluate.fidelity`` (flip, interior/silhouette PSNR, holes, crops); flip_maps: per view;
+        fidelity_seconds: its time. ablation: PSNR with and without skyboxes (None without them).
+        timing: ``BundleRenderer.time_frames``; silhouette_blend: whether the player ran the soft-silhouette
+        pass; plain: the plain-texture baseline; runtime_points: the field's
+        error against run time; extrapolation and extra_views: lane-shifted views (None / {} without them).
+    """
+
+    field_views: FieldViews
+    bundle_images: list
+    quality: dict
+    parity: float
+    fidelity: dict
+    flip_maps: list
+    fidelity_seconds: float
+    ablation: dict | None
+    timing: dict
+    silhouette_blend: bool
+    plain: dict
+    runtime_points: list
+    extrapolation: dict | None
+    extra_views: dict

@@ -15,7 +15,6 @@ and weights. Samples run along the last dimension: tensors are (..., S) for S sa
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
 TAU_MAX = 1e10
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -31,6 +32,9 @@ from ..errors import BadInputError
 from ..render.compositing import alpha_from_sdf, optical_depth, weights_from_alpha
 from ..render.rays import ray_aabb
 from .report import Item, StabilityReport
+
+if TYPE_CHECKING:
+    from ..fields.base import Field
 
 #: Step counts (per aabb diagonal) the probe rays are composited at; the reference is REF_STEPS.
 CANDIDATE_STEPS = (128, 256, 512, 1024)
@@ -517,7 +521,7 @@ def _colour(c: _Ctx, max_points: int = 4096) -> list[Item]:
     return items
 
 
-def probe_field(field, cameras=None, *, samples: int = 64, rays: int = 512, num_steps: int | None = None,
+def probe_field(field: Field, cameras=None, *, samples: int = 64, rays: int = 512, num_steps: int | None = None,
                 grid_resolution: int | None = None, chunk: int = 1 << 16, source: str | None = None
                 ) -> StabilityReport:
     """Probe ``field`` (Field protocol) for stiff and extreme cases; cheap (a few seconds).

@@ -4,7 +4,6 @@ tests/test_sdf_opacity.py; not repeated here.)"""
 
 from __future__ import annotations
 
-import math
 
 import mpmath
 import numpy as np

@@ -1,0 +1,184 @@
+"""What a run keeps and what it leaves out, as records: each rule here measures (or reads the configuration)
+and returns its choice, recording a :class:`Decision` (component, kept, reason, measured) in the run's
+:class:`Decisions`. The report renders them: ``report.json["left_out"]`` lists the components left out with
+their reasons (the contract), ``report.json["decisions"]`` every decision with what was measured.
+
+The measurements and thresholds themselves live in ``pipeline.decisions``; this module turns them into choices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field as dataclass_field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..config import DistillConfig
+from . import decisions
+
+if TYPE_CHECKING:
+    from ..fields.base import Field
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One choice of the run: ``component`` kept or left out, why, and the figures it rests on."""
+
+    component: str
+    kept: bool
+    reason: str
+    measured: dict = dataclass_field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {"component": self.component, "kept": self.kept, "reason": self.reason, "measured": self.measured}
+
+
+class Decisions:
+    """The run's decisions in the order they were taken."""
+
+    def __init__(self) -> None:
+        self.items: list[Decision] = []
+
+    def keep(self, component: str, reason: str, **measured) -> None:
+        self.items.append(Decision(component, True, reason, measured))
+
+    def leave_out(self, component: str, reason: str, **measured) -> None:
+        self.items.append(Decision(component, False, reason, measured))
+
+    def left_out(self) -> list[dict]:
+        """The contract's ``left_out``: [{"component", "reason"}] of what was left out, in order."""
+        return [{"component": d.component, "reason": d.reason} for d in self.items if not d.kept]
+
+    def to_json(self) -> list[dict]:
+        return [d.to_json() for d in self.items]
+
+
+class Background:
+    """What rays that miss the foreground see, measured once per run: ``constant`` (bool) and ``reason``
+    (``decisions.background_is_constant``), and the field's constant ``colour`` ((3,) float32 tensor)."""
+
+    def __init__(self, field: Field) -> None:
+        self.constant, self.reason = decisions.background_is_constant(field)
+        self.colour = decisions.background_color(field)
+
+
+def skyboxes(mode: str, coverage: np.ndarray, background: Background, record: Decisions) -> tuple[bool, str]:
+    """(use skyboxes, reason): ``mode`` "on"/"off" as configured; "auto" uses them when training rays miss the
+    mesh (``coverage``: (N, H, W) bool, the G-buffers') and the background is not one constant colour."""
+    if mode == "off":
+        record.leave_out("skyboxes", "turned off by configuration")
+        return False, "off"
+    if mode == "on":
+        record.keep("skyboxes", "turned on by configuration")
+        return True, "turned on by configuration"
+    uncovered = float(1.0 - coverage.mean())
+    if uncovered == 0.0:
+        reason = "every training ray ends on the foreground mesh"
+        record.leave_out("skyboxes", reason, uncovered_fraction=0.0)
+        return False, reason
+    if background.constant:
+        record.leave_out("skyboxes", background.reason, uncovered_fraction=uncovered)
+        return False, background.reason
+    reason = f"{100 * uncovered:.1f}% of training pixels miss the mesh and {background.reason}"
+    record.keep("skyboxes", reason, uncovered_fraction=uncovered)
+    return True, reason
+
+
+def silhouette_blend(mode: str, fringe_pixels: float, train, test, record: Decisions) -> bool:
+    """Whether the bundle plays with the soft-silhouette pass: when the field's fringe, ``fringe_pixels`` wide in
+    the training views, is at least ``decisions.SILHOUETTE_BLEND_MIN_PIXELS`` wide at the held-out (playing)
+    resolution (``mode`` "auto"; "on" / "off" force it); otherwise left out with the reason."""
+    if mode != "auto":
+        if mode == "off":
+            record.leave_out("soft-silhouette pass", "turned off by configuration")
+        else:
+            record.keep("soft-silhouette pass", "turned on by configuration")
+        return mode == "on"
+    width = fringe_pixels * float(test.width) / float(train.width)
+    if width >= decisions.SILHOUETTE_BLEND_MIN_PIXELS:
+        record.keep("soft-silhouette pass", f"the field's edges are {width:.1f} pixels wide at "
+                                            f"{test.width}x{test.height}", edge_pixels=width)
+        return True
+    record.leave_out("soft-silhouette pass",
+                     f"the field's edges are {width:.1f} pixels wide at {test.width}x{test.height} "
+                     f"(< {decisions.SILHOUETTE_BLEND_MIN_PIXELS:g}): the mesh's hard edges match them",
+                     edge_pixels=width)
+    return False
+
+
+def fringe_shell(mode: str, opacity: np.ndarray, background: Background, record: Decisions) -> bool:
+    """Whether the mesh should enclose the field's soft fringe (see ``geometry.marching``): when the fringe is
+    at least ``decisions.FRINGE_MIN_PIXELS`` wide in the training views (``opacity``: (N, H, W) teacher
+    opacities) and the background is one constant colour (over it, a partly opaque fringe pixel is one colour
+    per view and angle, which the texture learns with the facing input; over skyboxes it is not)."""
+    if mode != "auto":
+        return mode == "on"
+    width = decisions.fringe_width_pixels(opacity)
+    if width < decisions.FRINGE_MIN_PIXELS:
+        record.leave_out("soft-fringe shell",
+                         f"the field's fringe is {width:.1f} training pixels wide (< "
+                         f"{decisions.FRINGE_MIN_PIXELS:g}): the mesh stays at the surface level", fringe_pixels=width)
+        return False
+    if not background.constant:
+        record.leave_out("soft-fringe shell",
+                         f"the field's fringe is {width:.1f} training pixels wide, but the background is not one "
+                         "colour (skyboxes): the mesh stays at the surface level", fringe_pixels=width)
+        return False
+    record.keep("soft-fringe shell", f"the field's fringe is {width:.1f} training pixels wide", fringe_pixels=width)
+    return True
+
+
+def facing_input(mesh, enclose: bool, record: Decisions) -> bool:
+    """The facing cosine |n . d| as a shader input when the mesh has a shell enclosing a soft fringe (its
+    grazing pixels fade with the angle; see ``neural/shader.py``); otherwise left out, with the reason."""
+    if enclose and mesh.core_faces is not None:
+        record.keep("facing input", "the mesh has a shell enclosing the field's soft fringe")
+        return True
+    if enclose:
+        record.leave_out("facing input", "the mesh at the field's surface level already covers its opaque pixels")
+    return False
+
+
+def view_dependence(field: Field, mesh, cfg: DistillConfig, record: Decisions,
+                    fringe_shell: bool = False) -> tuple[bool, float | None]:
+    """(use the view direction, measured spread). A mesh moved out to a soft fringe's shell keeps it whatever
+    the field's own radiance does: a ray crossing the fringe averages colours along its path, so the colour at
+    a shell point changes with the direction (gradient ball: held-out interior 24.3 dB without it)."""
+    mode = cfg.texture.view_dependence
+    if mode == "on" or (mode == "auto" and fringe_shell):
+        record.keep("view direction", "turned on by configuration" if mode == "on"
+                    else "the mesh's fringe shell sees colours averaged along each ray")
+        return True, None
+    if mode == "off":
+        record.leave_out("view direction", "turned off by configuration")
+        return False, None
+    spread = decisions.measure_view_dependence(field, mesh, seed=cfg.train.seed)
+    if spread < cfg.texture.view_threshold:
+        record.leave_out("view direction",
+                         f"the field's colour barely changes with view direction (mean spread {spread:.4f} < "
+                         f"{cfg.texture.view_threshold}); the shader has no view input", spread=spread)
+        return False, spread
+    record.keep("view direction", f"the field's colour changes with view direction (mean spread {spread:.4f})",
+                spread=spread)
+    return True, spread
+
+
+def core_view_dependence(field: Field, mesh, cfg: DistillConfig, use_viewdir: bool, record: Decisions) -> bool | None:
+    """Whether the core's shader of a two-layer mesh takes the view direction (None: as ``use_viewdir``).
+
+    A core at the level the field's colour comes from (``geometry.colour_level``, ``mc_colour_level_used``)
+    sees no parallax through the fringe, so it needs the direction only when the field's own colour changes
+    with it (measured on the core, ``decisions.measure_view_dependence``); the shell keeps it (its fringe
+    pixels average colours along the ray). Without it the gradient ball's held-out core interior scored 41.3
+    against 39.3 dB (``NeuralTextureModel``, ``core_viewdir``)."""
+    if (not use_viewdir or mesh.core_faces is None or cfg.texture.view_dependence != "auto"
+            or not mesh.stats.get("mc_colour_level_used")):
+        return None
+    spread = decisions.measure_view_dependence(field, mesh.layers()[0], seed=cfg.train.seed)
+    if spread >= cfg.texture.view_threshold:
+        return None
+    record.leave_out("view direction of the core's shader",
+                     f"the core sits where the field's colour comes from and that colour barely changes with the "
+                     f"view (mean spread {spread:.4f} < {cfg.texture.view_threshold}); only the fringe shell's "
+                     "shader takes the direction", spread=spread)
+    return False

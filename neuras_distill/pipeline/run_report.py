@@ -1,0 +1,99 @@
+"""The run's ``report.json`` (the public contract, ``docs/report.md`` and DESIGN's report keys), assembled from
+the stages' results."""
+
+from __future__ import annotations
+
+import platform
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..bake.bundle import Bundle
+from .stage_results import (Backdrop, CameraSplit, DistilledModel, Evaluation, GeometryResult, ShaderInputs,
+                            TrainingPlan, TrainingViews)
+from .stages.context import RunContext
+
+
+def device_info(gl_info: dict | None) -> dict:
+    """What ran each side: the field's CPU or GPU, the bundle's OpenGL renderer."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    field_side = f"CPU: {cpu} ({torch.get_num_threads()} threads), torch {torch.__version__}"
+    if torch.cuda.is_available():
+        field_side = f"GPU: {torch.cuda.get_device_name(0)}"
+    gl = gl_info or {}
+    return {"field": field_side, "bundle": f"OpenGL: {gl.get('renderer', '?')} ({gl.get('version', '?')})",
+            "python": sys.version.split()[0], "platform": platform.platform()}
+
+
+def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, inputs: ShaderInputs,
+                 plan: TrainingPlan, training: TrainingViews, backdrop: Backdrop, distilled: DistilledModel, bundle: Bundle,
+                 ev: Evaluation, *, stability: dict | None, source: dict | None, gl_info: dict | None) -> dict:
+    """``report.json`` without the timing of the whole run and the work area (``pipeline.run`` adds them)."""
+    cfg, train, test, mesh = ctx.cfg, views.train, views.test, geometry.mesh
+    field_seconds = ev.field_views.seconds
+    fps_before = 1.0 / float(np.median(field_seconds))
+    fps_after = float(ev.timing["fps"])
+    tex_res = int(mesh.stats["uv_resolution"])
+    skybox = distilled.skybox
+    log = distilled.log
+    return {
+        "version": __version__,
+        "fps_before": fps_before,
+        "fps_after": fps_after,
+        "speedup": fps_after / fps_before,
+        "resolution": [test.width, test.height],
+        "device": device_info(gl_info),
+        "psnr": ev.quality["psnr"],
+        "ssim": ev.quality["ssim"],
+        "lpips": None,
+        "lpips_note": "no LPIPS backbone weights available locally (none are downloaded)",
+        "parity_psnr": ev.parity,
+        "psnr_per_view": ev.quality["psnr_per_view"],
+        "ssim_per_view": ev.quality["ssim_per_view"],
+        **ev.fidelity,  # flip, psnr_interior, psnr_silhouette, hole_fraction (+ _per_view), silhouette_band_px, crops
+        "fidelity_seconds": ev.fidelity_seconds,
+        "distill_seconds": None,
+        "stage_seconds": ctx.clock.seconds,
+        "mesh_faces": mesh.num_faces,
+        "mesh_stats": {k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))},
+        "texture_resolution": [tex_res, tex_res],
+        "feature_dim": cfg.texture.feature_dim,
+        "codebook_size": int(bundle.manifest.get("num_codes", cfg.texture.num_codes)),
+        "bundle_bytes": int(bundle.nbytes_on_disk()),
+        "feature_bytes_vq": int(bundle.feature_nbytes()),
+        "feature_bytes_float16": int(bundle.float16_nbytes()),
+        "left_out": ctx.decisions.left_out(),
+        "decisions": ctx.decisions.to_json(),
+        "view_dependence": {"used": inputs.use_viewdir, "measured_spread": inputs.view_spread,
+                            "core": inputs.use_viewdir if inputs.core_viewdir is None else inputs.core_viewdir},
+        "skybox": ({"used": True, "reason": backdrop.reason, **skybox.layers.to_json(),
+                    "num_codes": int(bundle.manifest["skybox"]["num_codes"]),
+                    "touched_fraction": log["sky_touched_fraction"]}
+                   if skybox is not None else {"used": False, "reason": backdrop.reason}),
+        "ablation": ev.ablation,
+        "extrapolation": ev.extrapolation,
+        "origin": [float(x) for x in training.origin],
+        "error_vs_runtime": ev.runtime_points,
+        "frame_time_ms": {"field_median": 1000 * float(np.median(field_seconds)),
+                          "bundle_median": ev.timing["median_ms"], "bundle_p90": ev.timing.get("p90_ms")},
+        "plain_texture": ev.plain,
+        "silhouette_blend": ev.silhouette_blend,
+        "training_plan": plan.to_json(),
+        "stability": stability,
+        "train_log": list(log["entries"]),
+        "train_summary": {k: v for k, v in log.items() if k != "entries"},
+        "views": {"train": len(train), "test": len(test), "train_resolution": [train.width, train.height]},
+        "teacher_steps": cfg.teacher.num_steps,
+        "config": cfg.to_dict(),
+        "source": source,
+    }

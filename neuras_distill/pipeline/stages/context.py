@@ -1,0 +1,118 @@
+"""What every stage of a run shares: the field, the configuration, the work area, the clock and the record of
+decisions (:class:`RunContext`)."""
+
+from __future__ import annotations
+
+import json
+import time
+import zlib
+from dataclasses import asdict, dataclass, field as dataclass_field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from ... import __version__
+from ...config import DistillConfig
+from ...fields.base import Field
+from ..cache import StageCache, field_fingerprint
+from ..choices import Background, Decisions
+
+#: The stages of a run, in order (their manifests are ``stages/<name>/manifest.json`` in the run folder).
+STAGE_NAMES = ("cameras", "teacher", "geometry", "gbuffer", "distill", "bake", "evaluate")
+
+
+def seed_stage(seed: int, stage: str) -> None:
+    """Seed torch and numpy from the run's seed and the stage's name, so a stage's result does not depend on
+    whether the stages before it ran or were reused."""
+    s = (int(seed) * 1_000_003 + zlib.crc32(stage.encode())) % 2**31
+    torch.manual_seed(s)
+    np.random.seed(s)
+
+
+class StageClock:
+    """Announces, seeds and times the stages; writes each one's manifest into ``<root>/stages/<name>/``."""
+
+    def __init__(self, root: Path | None, log: Callable[[str], None], seed: int = 0):
+        self.root, self.log, self.seed = root, log, seed
+        self.seconds: dict[str, float] = {}
+        self._name, self._t0 = "", 0.0
+
+    def start(self, name: str, what: str) -> None:
+        self.log(f"[{STAGE_NAMES.index(name) + 1}/{len(STAGE_NAMES)}] {name}: {what}")
+        self._name, self._t0 = name, time.perf_counter()
+        seed_stage(self.seed, name)
+
+    def done(self, **info) -> float:
+        seconds = time.perf_counter() - self._t0
+        self.seconds[self._name] = round(seconds, 3)
+        if self.root is not None:
+            folder = self.root / "stages" / self._name
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "manifest.json").write_text(json.dumps(
+                {"stage": self._name, "version": __version__, "seconds": seconds, **info}, indent=2, default=str))
+        return seconds
+
+
+def settings(section, drop: tuple = ()) -> dict:
+    """A config section as a dict for cache keys, without the settings that do not change results."""
+    return {k: v for k, v in asdict(section).items() if k not in drop}
+
+
+@dataclass
+class RunContext:
+    """One run's shared state.
+
+    Attributes:
+        field: the field being distilled (world coordinates).
+        cfg: the validated configuration (the stability check may have raised some settings).
+        root: the run folder being written (hidden until the run finishes), None when nothing is written.
+        cache: the work area, None without a run folder.
+        log: one line to the user; progress: whether to print per-view progress.
+        clock: stage announcements, seeds and times; decisions: what was kept and left out, in order.
+        keys: each stored stage's key (``pipeline.cache.digest``), filled in as the stages run.
+    """
+
+    field: Field
+    cfg: DistillConfig
+    root: Path | None
+    cache: StageCache | None
+    log: Callable[[str], None]
+    progress: bool
+    clock: StageClock = None
+    decisions: Decisions = dataclass_field(default_factory=Decisions)
+    keys: dict = dataclass_field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.clock is None:
+            self.clock = StageClock(self.root, self.log, self.cfg.train.seed)
+        self.fingerprint = field_fingerprint(self.field)
+        self._background: Background | None = None
+
+    @property
+    def background(self) -> Background:
+        """What rays that miss the foreground see, measured once."""
+        if self._background is None:
+            self._background = Background(self.field)
+        return self._background
+
+    def cached(self, stage: str, key: str, compute: Callable[[], Any], save, load) -> Any:
+        """The stored result of ``stage`` under ``key`` (``StageCache.cached``), or ``compute()`` without a
+        work area; records the key."""
+        self.keys[stage] = key
+        if self.cache is None:
+            return compute()
+        return self.cache.cached(stage, key, compute, save, load)
+
+    def progress_printer(self, label: str):
+        """A ``(done, total)`` callback printing per-view progress about five times, or None."""
+        if not self.progress:
+            return None
+        t0 = time.perf_counter()
+
+        def show(done: int, total: int) -> None:
+            if done == total or done == 1 or done % max(1, total // 5) == 0:
+                self.log(f"    {label}: {done}/{total} views ({time.perf_counter() - t0:.1f} s)")
+
+        return show

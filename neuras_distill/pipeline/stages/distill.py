@@ -1,0 +1,53 @@
+"""Stage 5: train the neural texture (feature atlas, codebook, shader) and the skyboxes on the teacher's
+renders, resuming from the last training checkpoint of a killed run."""
+
+from __future__ import annotations
+
+from ...neural.model import NeuralTextureModel
+from ...neural.train import fit
+from ...neural.train_checkpoint import TrainCheckpoint
+from ..cache import digest
+from ..stage_results import Backdrop, DistilledModel, ShaderInputs, TeacherResult, TrainedModel, TrainingPlan
+from ..stage_results import TrainingViews
+from .context import RunContext, settings
+
+
+def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, training: TrainingViews,
+                  inputs: ShaderInputs, backdrop: Backdrop) -> DistilledModel:
+    """The trained model and skybox (stored as ``distill``; training checkpoints under ``work/checkpoints``)."""
+    cfg, t = ctx.cfg, ctx.cfg.texture
+    tex_res = int(training.mesh.stats["uv_resolution"])
+    ctx.clock.start("distill", f"{tex_res}^2 x {t.feature_dim} feature atlas, "
+                               + (f"{t.num_codes} codes, " if t.quantize else "no VQ, ")
+                               + f"MLP {t.num_layers}x{t.hidden}{'' if inputs.use_viewdir else ' (no view input)'}, "
+                               f"{plan.steps} steps" + (f" (at most {plan.time_budget_s:.0f} s)"
+                                                        if plan.time_budget_s else ""))
+    model = NeuralTextureModel(tex_res, tex_res, feature_dim=t.feature_dim, num_codes=t.num_codes,
+                               hidden=t.hidden, num_layers=t.num_layers, use_viewdir=inputs.use_viewdir,
+                               use_facing=inputs.use_facing, mesh_layers=len(training.mesh.layers()),
+                               core_viewdir=inputs.core_viewdir, use_vq=t.quantize)
+    skybox = backdrop.skybox
+    key = digest("distill", ctx.keys["gbuffer"], ctx.keys["plan"], plan.steps, plan.time_budget_s,
+                 settings(cfg.texture), settings(cfg.train, ("checkpoint_every_s",)), settings(cfg.skybox),
+                 inputs.use_viewdir, inputs.use_facing, inputs.core_viewdir, skybox is not None,
+                 skybox.layers.to_json() if skybox is not None else None, backdrop.clear)
+    checkpoint = (TrainCheckpoint(ctx.cache.work / "checkpoints" / f"distill-{key}.pt", key,
+                                  every_s=cfg.train.checkpoint_every_s, log=ctx.log) if ctx.cache is not None else None)
+
+    def train() -> TrainedModel:
+        gb = training.gbuffer
+        tr = cfg.train
+        log = fit(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, lr=tr.lr,
+                  batch_patches=tr.batch_patches, patch=tr.patch, ssim_weight=tr.ssim_weight,
+                  vq_warmup=tr.vq_warmup, time_budget_s=plan.time_budget_s, progress=ctx.progress, seed=tr.seed,
+                  skybox=skybox, origins=backdrop.sky_origins, checkpoint=checkpoint)
+        if log.resumed_from_step:
+            ctx.log(f"distill: continued from the checkpoint at step {log.resumed_from_step}")
+        return TrainedModel.of(model, skybox, log.as_dict())
+
+    trained = ctx.cached("distill", key, train, TrainedModel.save, TrainedModel.load)
+    trained.load_into(model, skybox)
+    if checkpoint is not None:
+        checkpoint.remove()
+    ctx.clock.done(key=key, **{k: v for k, v in trained.log.items() if k != "entries"})
+    return DistilledModel(model, skybox, trained.log)

@@ -1,0 +1,91 @@
+"""Stage 7: the bundle against the field on the held-out cameras: error (PSNR, SSIM, FLIP, interior and
+silhouette bands, holes), GL vs torch parity, frame times of both, the plain-texture baseline, the field's
+error against run time, and the lane-shifted views of scenes that define them."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import time
+
+from ...bake.bundle import Bundle
+from ...playback.projection import shift_cameras
+from ...playback.rasterize import rasterize_gbuffer
+from ...playback.renderer import BundleRenderer
+from ...render.cameras import Cameras
+from ...render.volume import VolumeRenderer
+from .. import evaluate
+from ..cache import digest
+from ..stage_results import Backdrop, CameraSplit, DistilledModel, Evaluation, FieldViews, TrainingViews
+from .context import RunContext, settings
+
+if TYPE_CHECKING:
+    from ...fields.base import Field
+
+
+def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRenderer, training: TrainingViews,
+                     distilled: DistilledModel, backdrop: Backdrop, bundle: Bundle) -> Evaluation:
+    """Everything the report measures; the field's held-out renders are stored as ``field_views``."""
+    cfg, test, origin = ctx.cfg, views.test, training.origin
+    ctx.clock.start("evaluate", f"{len(test)} held-out views at {test.width}x{test.height}: field vs bundle")
+
+    def render_held_out() -> FieldViews:
+        out = evaluate.render_field_views(teacher, test, ctx.progress_printer("field (held-out)"))
+        return FieldViews(out.images, out.opacities, out.seconds)
+
+    key = digest("field_views", ctx.fingerprint, test.to_json(), settings(cfg.teacher))
+    field_views = ctx.cached("field_views", key, render_held_out, FieldViews.save, FieldViews.load)
+    field_images = field_views.images
+    player = BundleRenderer(bundle)
+    bundle_images = [player.render(test, i) for i in range(len(test))]
+    quality = evaluate.compare(bundle_images, field_images)
+    cull = cfg.geometry.cull_back_faces
+    local_test = shift_cameras(test, origin)
+    parity = evaluate.gl_torch_parity(distilled.model, training.mesh, local_test, bundle_images[0],
+                                      backdrop.clear.numpy(),
+                                      lambda m, c: rasterize_gbuffer(m, c, cull_back_faces=cull),
+                                      skybox=distilled.skybox, world_cameras=test,
+                                      silhouette_blend=player.silhouette_blend)
+    t_fid = time.perf_counter()
+    coverages = evaluate.bundle_coverage(lambda c: rasterize_gbuffer(training.mesh, c, cull_back_faces=cull),
+                                         local_test)
+    fidelity, flip_maps = evaluate.fidelity(bundle_images, field_images, field_views.opacities, coverages)
+    fidelity_seconds = time.perf_counter() - t_fid
+    ablation = None
+    if distilled.skybox is not None and cfg.skybox.ablation:
+        no_sky = evaluate.compare([player.render(test, i, skybox=False) for i in range(len(test))], field_images)
+        ablation = {"psnr_with_skyboxes": quality["psnr"], "psnr_without_skyboxes": no_sky["psnr"],
+                    "drop_db": quality["psnr"] - no_sky["psnr"],
+                    "how": "the same bundle played without its skybox pass; pixels the mesh misses get the mean "
+                           "colour of the training pixels it misses"}
+    timing = player.time_frames(test, warmup=5, frames=cfg.eval.fps_frames)
+    plain = evaluate.plain_texture_baseline(distilled.model, bundle, training.gbuffer, training.dirs, test,
+                                            field_images, bundle_images, coverages, cfg.eval.fps_frames)
+    points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(ctx.field, num_steps=s), test,
+                                       2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
+                                       cfg.teacher.num_steps, player)
+    extrapolation, extra_views = lane_shift_views(ctx.field, teacher, player, test)
+    ctx.clock.done(psnr=quality["psnr"], ssim=quality["ssim"], parity_psnr=parity, flip=fidelity["flip"],
+                   hole_fraction=fidelity["hole_fraction"], fidelity_seconds=fidelity_seconds)
+    return Evaluation(field_views, bundle_images, quality, parity, fidelity, flip_maps, fidelity_seconds, ablation,
+                      timing, player.silhouette_blend, plain, points, extrapolation, extra_views)
+
+
+def lane_shift_views(field: Field, teacher: VolumeRenderer, player: BundleRenderer, test: Cameras,
+                     views: int = 2) -> tuple[dict | None, dict]:
+    """Extrapolation as the paper evaluates it, for fields that declare lane shifts (``field.lane_shifts``,
+    metres): the first ``views`` held-out cameras moved sideways by each shift, field vs bundle.
+    Returns ({"+2 m": {"psnr", "ssim"}, ...} or None, {image name: [(field, bundle), ...]})."""
+    shifts = getattr(field, "lane_shifts", None)
+    if not shifts:
+        return None, {}
+    sub = test[list(range(min(views, len(test))))]
+    results, images = {}, {}
+    for shift in shifts:
+        cams = sub.lane_shifted(float(shift))
+        field_images, _ = evaluate.render_field_timed(teacher, cams)
+        bundle_images = [player.render(cams, i) for i in range(len(cams))]
+        q = evaluate.compare(bundle_images, field_images)
+        results[f"{float(shift):+g} m"] = {"psnr": q["psnr"], "ssim": q["ssim"]}
+        images[f"lane_{float(shift):+g}m"] = list(zip(field_images, bundle_images))
+    return results, images

@@ -1,0 +1,126 @@
+"""Stage 3: the mesh. Extract the surface (marching cubes or fused depths, cleanup, decimation, culling, a
+trial unwrap), choose the atlas side from it, unwrap at that side; then the choices the mesh decides (shader
+inputs, training steps)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import require
+from ...geometry.extract import Surface, extract_surface, unwrap_surface
+from .. import choices, decisions
+from ..cache import digest
+from ..stage_results import CameraSplit, GeometryResult, ShaderInputs, TeacherResult, TrainingPlan
+from .context import RunContext, settings
+
+
+def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
+                   plan: TrainingPlan) -> tuple[GeometryResult, ShaderInputs, TrainingPlan]:
+    """The unwrapped mesh in world coordinates (stored as ``surface``, then ``geometry``) with how its atlas
+    side was chosen, the shader inputs it decides and the plan with its steps fixed. Decisions recorded: the
+    fringe shell, the atlas's texels, culled faces, shader inputs, training steps."""
+    g = ctx.cfg.geometry
+    ctx.clock.start("geometry", f"marching cubes at {g.grid_resolution}, decimation to {g.face_budget} faces, "
+                                "culling, UV unwrap")
+    enclose = choices.fringe_shell(g.enclose_fringe, teacher.opacities, ctx.background, ctx.decisions)
+    surface = extract(ctx, views, teacher, enclose)
+    auto_side = ctx.cfg.texture.resolution == 0
+    side, density = choose_atlas_side(ctx, surface, views, plan) if auto_side else (ctx.cfg.texture.resolution, {})
+    key = digest("geometry", ctx.keys["surface"], side)
+    result = ctx.cached("geometry", key,
+                        lambda: GeometryResult(unwrap_surface(surface, side, unwrap_timeout_s=g.unwrap_timeout_s),
+                                               density),
+                        GeometryResult.save, GeometryResult.load)
+    mesh = result.mesh
+    tex_res, charts = int(mesh.stats["uv_resolution"]), int(mesh.stats.get("uv_charts") or 0)
+    need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
+    require(tex_res >= need, f"a {tex_res}x{tex_res} texture is too small for this mesh: its {charts} UV charts "
+                             f"need at least {need}x{need} texels; raise --texture-resolution (or use 0 for "
+                             f"automatic) or lower --face-budget")
+    if auto_side:
+        _record_atlas_side(ctx, tex_res, density)
+    culled = int(mesh.stats.get("culled_faces", 0))
+    if culled:
+        ctx.decisions.leave_out("unseen faces", f"{culled} faces seen by no training camera were culled before "
+                                                "unwrapping (they get no texels)", culled_faces=culled)
+    inputs = choose_shader_inputs(ctx, mesh, enclose)
+    plan = fix_steps(ctx, plan, mesh)
+    ctx.clock.done(key=key, **{k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))})
+    return result, inputs, plan
+
+
+def extract(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, enclose: bool) -> Surface:
+    """The field's surface (marching cubes, or the teacher's fused depths), cleaned, decimated, culled and
+    unwrapped once at a trial side (``geometry.extract.extract_surface``); ``enclose``: around the soft fringe."""
+    g = ctx.cfg.geometry
+    # the trial unwrap's side does not depend on a fixed atlas side, so runs that differ only in it (the bench's
+    # atlas variants) share the stored surface; the final unwrap is at the chosen side
+    trial_side = min(1024, ctx.cfg.texture.max_resolution)
+
+    def compute() -> Surface:
+        return extract_surface(ctx.field, views.train, grid_resolution=g.grid_resolution, face_budget=g.face_budget,
+                               trial_resolution=trial_side, unwrap_timeout_s=g.unwrap_timeout_s,
+                               cull_unseen=g.cull_unseen, density_level=getattr(ctx.field, "surface_level", None),
+                               cull_margin_deg=g.cull_margin_deg,
+                               field_opacity=teacher.opacities if enclose else None,
+                               field_depth=(teacher.surface_depths, teacher.fringe_depths, teacher.opacities),
+                               core_level=g.core_level, from_depths=g.surface == "depths")
+
+    key = digest("surface", ctx.keys["teacher"], settings(g, ("cull_back_faces",)), trial_side, enclose)
+    return ctx.cached("surface", key, compute, Surface.save, Surface.load)
+
+
+def choose_atlas_side(ctx: RunContext, surface: Surface, views: CameraSplit, plan: TrainingPlan) -> tuple[int, dict]:
+    """(atlas side, texel-density figures): the side at which the training views see about one texel per
+    ``decisions.PIXELS_PER_TEXEL`` pixels of the surface's core (a fringe shell covers the same pixels at a
+    quarter of its texel density), capped by ``texture.max_resolution`` and by what the training plan's samples
+    can fit (``decisions.training_budget_resolution``)."""
+    side, info = decisions.texel_density_resolution(surface.trial.layers()[0], views.train,
+                                                    hi=ctx.cfg.texture.max_resolution)
+    samples = plan.max_steps * plan.samples_per_step
+    budget = decisions.training_budget_resolution(samples, info["uv_area"])
+    return min(side, budget), dict(info, chosen=min(side, budget), budget=budget, samples=samples)
+
+
+def _record_atlas_side(ctx: RunContext, tex_res: int, density: dict) -> None:
+    hi = ctx.cfg.texture.max_resolution
+    capped = density["exact"] > hi
+    ppt = decisions.PIXELS_PER_TEXEL
+    ctx.decisions.leave_out(
+        "texels beyond the training views' detail",
+        f"atlas {tex_res}x{tex_res} chosen from texel density: the training views see {density['pixels']:.0f} "
+        f"pixels of surface on {100 * density['uv_area']:.1f}% of the atlas, one texel per {ppt:g}x{ppt:g} pixels "
+        f"at {density['exact']:.0f}" + (f" (capped at max_resolution {hi})" if capped else "")
+        + (f"; limited to {density['budget']} by the training budget ({density['samples']} samples, "
+           f"{decisions.SAMPLES_PER_TEXEL} per used texel)" if density["budget"] < density["exact"] else ""),
+        side=tex_res, **{k: v for k, v in density.items() if isinstance(v, (int, float))})
+
+
+def choose_shader_inputs(ctx: RunContext, mesh, enclose: bool) -> ShaderInputs:
+    """What the shader takes besides the features, decided on the mesh (``pipeline.choices``)."""
+    cfg, record = ctx.cfg, ctx.decisions
+    use_facing = choices.facing_input(mesh, enclose, record)
+    use_viewdir, spread = choices.view_dependence(ctx.field, mesh, cfg, record, fringe_shell=use_facing)
+    core_viewdir = choices.core_view_dependence(ctx.field, mesh, cfg, use_viewdir, record)
+    return ShaderInputs(use_viewdir, spread, use_facing, core_viewdir)
+
+
+def fix_steps(ctx: RunContext, plan: TrainingPlan, mesh) -> TrainingPlan:
+    """Fix the plan's ``steps``: configured, or enough for ``decisions.TARGET_SAMPLES_PER_TEXEL`` samples per
+    used texel of the atlas within ``max_steps``; the choice is recorded as a decision."""
+    used = min(1.0, mesh.uv_area()) * int(mesh.stats["uv_resolution"]) ** 2
+    steps, needed = decisions.training_steps(used, plan.samples_per_step, plan.max_steps)
+    if plan.configured_steps:
+        steps = plan.configured_steps
+    target = decisions.TARGET_SAMPLES_PER_TEXEL
+    if plan.configured_steps:
+        why = f"{steps} steps as configured ({needed} would give {target} samples per used texel)"
+    elif needed > plan.max_steps:
+        why = (f"{steps} steps: the {plan.time_budget_s:.0f} s budget (at {plan.steps_per_second:.0f} steps/s) "
+               f"affords fewer than the {needed} that give {target} samples to each of {int(used)} used texels")
+    else:
+        why = (f"{steps} steps give {target} samples to each of {int(used)} used texels (at least "
+               f"{decisions.MIN_TRAIN_STEPS}); the time budget would allow {plan.max_steps}")
+    ctx.decisions.leave_out("training beyond the atlas's needs", why, steps=int(steps), needed_steps=int(needed))
+    plan.steps, plan.needed_steps, plan.used_texels, plan.reason = int(steps), int(needed), int(used), why
+    return plan

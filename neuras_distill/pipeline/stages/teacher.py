@@ -1,0 +1,87 @@
+"""Stages 1 and 2: split the cameras, volume-render the training views (the teacher), and plan training."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+
+from ...errors import require
+from ...render.cameras import Cameras
+from ...render.volume import VolumeRenderer
+from .. import decisions, evaluate
+from ..cache import digest
+from ..stage_results import CameraSplit, TeacherResult, TrainingPlan
+from .context import RunContext, settings
+
+
+def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
+    """Hold out every ``cameras.test_every``-th camera, size both sets, write ``cameras.json`` and plan the
+    skybox layers (which checks the user's distances before any rendering)."""
+    from ...neural.skybox import plan_layers
+
+    cfg = ctx.cfg
+    ctx.clock.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
+    train_full, test_full = cameras.split(cfg.cameras.test_every)
+    train = train_full.resized(cfg.teacher.train_width)
+    test = test_full.resized(cfg.eval.width) if cfg.eval.width else test_full    # 0: the cameras' own size
+    if ctx.root is not None:
+        (ctx.root / "cameras.json").write_text(json.dumps({"train": train.to_json(), "test": test.to_json()}))
+    sky_layers = None
+    if cfg.skybox.mode != "off":
+        sky = cfg.skybox
+        sky_layers = plan_layers(ctx.field.aabb, cameras.centers.double().numpy(), num_layers=sky.layers,
+                                 near=sky.near or None, far=sky.far or None, resolution=sky.resolution)
+    ctx.clock.done(train=len(train), test=len(test), train_size=[train.width, train.height],
+                   test_size=[test.width, test.height])
+    return CameraSplit(train, test, sky_layers)
+
+
+def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer, TeacherResult, TrainingPlan]:
+    """The field's renders of the training views (stored as ``teacher``) and the training plan (``plan``):
+    (the volume renderer, reused for the held-out views, the renders, the plan)."""
+    cfg, train = ctx.cfg, views.train
+    ctx.clock.start("teacher", f"volume-rendering {len(train)} training views at {train.width}x{train.height}, "
+                               f"{cfg.teacher.num_steps} steps/ray")
+    teacher = VolumeRenderer(ctx.field, num_steps=cfg.teacher.num_steps)
+
+    def render() -> TeacherResult:
+        t0 = time.perf_counter()
+        out = evaluate.render_field_views(teacher, train, ctx.progress_printer("teacher"), depths=True)
+        return TeacherResult(np.stack(out.images).astype(np.float32), np.stack(out.opacities),
+                             np.stack(out.surface_depths), np.stack(out.fringe_depths),
+                             seconds=time.perf_counter() - t0)
+
+    key = digest("teacher", ctx.fingerprint, train.to_json(), settings(cfg.teacher))
+    result = ctx.cached("teacher", key, render, TeacherResult.save, TeacherResult.load)
+    require(bool(np.isfinite(result.images).all()), "the field renders NaN or Inf colours; check its parameters")
+    ctx.clock.done(views=len(train), key=key, render_seconds=result.seconds)
+    plan_key = digest("plan", key, views.test.to_json(), settings(cfg.train, ("checkpoint_every_s",)),
+                      settings(cfg.texture), settings(cfg.eval))
+    plan = ctx.cached("plan", plan_key, lambda: plan_training(ctx, result.seconds, views),
+                      TrainingPlan.save, TrainingPlan.load)
+    return teacher, result, plan
+
+
+def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -> TrainingPlan:
+    """The training plan's limits, known once the teacher has run: the time budget (configured, or a share of
+    the run's volume rendering, ``decisions.training_time_budget``), the measured steps per second and the
+    most steps (configured, or what the budget affords). Steps are fixed after the geometry."""
+    cfg, train, test = ctx.cfg, views.train, views.test
+    tr = cfg.train
+    samples_per_step = tr.batch_patches * tr.patch ** 2
+    # held-out views, plus the error-vs-runtime curve on one view (a 2x reference and each step count) and
+    # the lane-shifted views of scenes that define them
+    curve = (2 * cfg.teacher.num_steps + sum(cfg.eval.runtime_steps) + cfg.teacher.num_steps) / cfg.teacher.num_steps
+    shifts = 2 * len(getattr(ctx.field, "lane_shifts", None) or [])
+    eval_pixels = int((len(test) + curve + shifts) * test.width * test.height)
+    budget = tr.time_budget_s or decisions.training_time_budget(teacher_seconds, len(train) * train.width * train.height,
+                                                                 eval_pixels)
+    if tr.steps:                   # configured steps run to the end unless a time budget is configured too
+        return TrainingPlan(time_budget_s=tr.time_budget_s or None, samples_per_step=samples_per_step,
+                            steps_per_second=None, configured_steps=tr.steps, max_steps=tr.steps)
+    t = cfg.texture
+    speed = decisions.probe_training_speed(t.feature_dim, t.hidden, t.num_layers, tr.batch_patches, tr.patch)
+    return TrainingPlan(time_budget_s=float(budget), samples_per_step=samples_per_step, steps_per_second=speed,
+                        configured_steps=None, max_steps=max(decisions.MIN_TRAIN_STEPS, int(budget * speed)))
