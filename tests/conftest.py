@@ -64,7 +64,8 @@ def _thread_count_kept():
     if after != before:
         torch.set_num_threads(before)
         pytest.fail(f"the test left torch's thread count at {after} (it was {before}); use the fixtures "
-                    "one_torch_thread / two_torch_threads / torch_threads of tests/conftest.py", pytrace=False)
+                    "one_torch_thread / two_torch_threads / torch_threads of tests/conftest.py",
+                    pytrace=False)
 
 
 @pytest.fixture(autouse=True)

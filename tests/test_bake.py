@@ -84,13 +84,14 @@ def test_bundle_is_encoded_once_until_it_changes(tmp_path, monkeypatch):
     total, features = b.nbytes_on_disk(), b.feature_nbytes()
     assert len(encodes) == 1
     assert total == sum(p.stat().st_size for p in (tmp_path / "one").iterdir())
-    assert features == sum((tmp_path / "one" / n).stat().st_size for n in ("feature_index.png", "codebook.npy"))
+    assert features == sum((tmp_path / "one" / n).stat().st_size
+                           for n in ("feature_index.png", "codebook.npy"))
 
     def fresh(bundle):                  # what an encoding without the kept bytes gives
         return encode_files(bundle)
 
-    changes = [lambda: setattr(b, "plain_rgb", np.full((12, 20, 3), 7, np.uint8)),   # an attribute set
-               lambda: b.plain_rgb.__setitem__((0, 0, 0), 200),                       # an array changed in place
+    changes = [lambda: setattr(b, "plain_rgb", np.full((12, 20, 3), 7, np.uint8)),  # an attribute set
+               lambda: b.plain_rgb.__setitem__((0, 0, 0), 200),                      # changed in place
                lambda: b.textures["u_index"].__setitem__((0, 0), (b.textures["u_index"][0, 0] + 1) % 8),
                lambda: b.mesh.vertices.__setitem__((0, 0), 0.5),
                lambda: b.manifest.update(scene="other"),                               # the manifest edited

@@ -97,13 +97,15 @@ def test_a_broken_plugin_is_skipped_and_named_when_asked_for(fake_plugins, tmp_p
 def test_callers_cannot_change_the_cache(fake_plugins):
     registry.available_adapters().clear()
     registry.broken_adapters().clear()
-    assert set(registry.available_adapters()) == {"never", "text"} and set(registry.broken_adapters()) == {"shiny"}
+    assert set(registry.available_adapters()) == {"never", "text"}
+    assert set(registry.broken_adapters()) == {"shiny"}
 
 
 def test_nothing_sniffs_it(fake_plugins, tmp_path):
     other = tmp_path / "b.bin"
     other.write_bytes(b"\x00\x01")
-    with pytest.raises(BadInputError, match=r"not a checkpoint any installed adapter reads \(tried: never, text\)"):
+    with pytest.raises(BadInputError,
+                       match=r"not a checkpoint any installed adapter reads \(tried: never, text\)"):
         registry.load_field(other)
 
 

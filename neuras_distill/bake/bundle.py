@@ -99,7 +99,8 @@ class Bundle:
     vertex_shader: str | None = None
     sky_fragment_shader: str | None = None
     plain_rgb: np.ndarray | None = None
-    _encoded: tuple[bytes, dict[str, bytes]] | None = field(default=None, init=False, repr=False, compare=False)
+    _encoded: tuple[bytes, dict[str, bytes]] | None = field(default=None, init=False, repr=False,
+                                                            compare=False)
 
     @property
     def origin(self) -> np.ndarray:
@@ -151,7 +152,7 @@ class Bundle:
         return dict(self._encoded[1])
 
     def _encode_files(self) -> dict[str, bytes]:
-        """Encode every file of the bundle (the PNGs, the compressed mesh, the manifest with the files' hashes)."""
+        """Encode every file of the bundle: PNGs, the compressed mesh, the manifest with the files' hashes."""
         files: dict[str, bytes] = {}
         buf = io.BytesIO()
         m = self.mesh

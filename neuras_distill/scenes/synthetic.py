@@ -8,13 +8,13 @@ This module owns:
   ``"gradient-ball"`` (:mod:`.gradient_ball`, a density field only).
 * :class:`BunnyField`: the real Stanford bunny (``neuras_distill/data/bunny.obj``, y-up in the file) rotated
   to z-up, scaled to 1 unit tall, standing on a rounded disc. Its SDF is computed once with open3d
-  (``geometry.raycast.signed_distance``: ``RaycastingScene.compute_signed_distance`` with a majority vote over several rays for the sign, since
-  the scan has small holes; they all sit at the bottom, inside the base) and baked to a float32 grid cached
-  on disk (``$NEURAS_CACHE_DIR`` or ``~/.cache/neuras-distill/``, keyed by a hash of the OBJ bytes and the
-  bake parameters, written atomically). Evaluation: trilinear ``grid_sample`` of the bunny grid, united
-  (min) with the analytic SDF of the base; normals from a trilinear gradient grid (central differences).
-  Radiance: procedural albedo with fine detail times soft diffuse lighting, plus a Blinn-Phong lobe on
-  the bunny (view-dependent), clipped to [0, 1].
+  (``geometry.raycast.signed_distance``: ``RaycastingScene.compute_signed_distance`` with a majority vote
+  over several rays for the sign, since the scan has small holes; they all sit at the bottom, inside the
+  base) and baked to a float32 grid cached on disk (``$NEURAS_CACHE_DIR`` or ``~/.cache/neuras-distill/``,
+  keyed by a hash of the OBJ bytes and the bake parameters, written atomically). Evaluation: trilinear
+  ``grid_sample`` of the bunny grid, united (min) with the analytic SDF of the base; normals from a
+  trilinear gradient grid (central differences). Radiance: procedural albedo with fine detail times soft
+  diffuse lighting, plus a Blinn-Phong lobe on the bunny (view-dependent), clipped to [0, 1].
 
 open3d is reached only through :mod:`neuras_distill.geometry.raycast` (its one importer), which
 :func:`_bake_bunny_sdf` imports lazily: the scenes need it only when a bunny grid is baked.
