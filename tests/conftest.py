@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -51,35 +52,77 @@ def fixed_seeds():
     torch.manual_seed(0)
 
 
-@pytest.fixture
-def one_torch_thread():
-    """Small tensors: one torch thread is faster and immune to a busy shared CPU."""
+@contextlib.contextmanager
+def _thread_count_kept():
+    """Fails (``pytest.fail``) when torch's thread count at the end of the block differs from its start, after
+    putting the start's count back."""
+    import torch
+
+    before = torch.get_num_threads()
+    yield
+    after = torch.get_num_threads()
+    if after != before:
+        torch.set_num_threads(before)
+        pytest.fail(f"the test left torch's thread count at {after} (it was {before}); use the fixtures "
+                    "one_torch_thread / two_torch_threads / torch_threads of tests/conftest.py",
+                    pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def torch_thread_count_kept():
+    """Fails a test that leaves torch's thread count changed, and puts it back so the tests after it run as
+    they would alone. Change it with ``one_torch_thread``, ``two_torch_threads`` or ``torch_threads``, which
+    restore it."""
+    with _thread_count_kept():
+        yield
+
+
+@contextlib.contextmanager
+def _torch_threads(n: int):
+    """torch runs on ``n`` threads inside the block; the count it had before is restored after it (also when
+    the block raises), so no test leaves its thread count to the tests after it."""
     import torch
 
     old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="session")
+def torch_threads():
+    """:func:`_torch_threads` for fixtures of any scope: ``with torch_threads(2): ...``."""
+    return _torch_threads
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Small tensors: one torch thread is faster and immune to a busy shared CPU."""
+    with _torch_threads(1):
+        yield
+
+
+@pytest.fixture
+def two_torch_threads():
+    """End-to-end runs: two torch threads for the test, the previous count restored after it."""
+    with _torch_threads(2):
+        yield
 
 
 @pytest.fixture(scope="session")
 def small_run(tmp_path_factory):
     """One small pipeline run (a sphere SDF, fast preset, 128x128 held-out views), shared by the end-to-end and
     the report tests: (DistillResult, run folder). Needs an OpenGL context; the tests using it are marked ``gl``."""
-    import torch
-
     import neuras_distill as nd
     from neuras_distill.scenes.analytic import SphereSDF
 
-    old = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
+    with _torch_threads(2):
         out = tmp_path_factory.mktemp("e2e") / "run"
         field = SphereSDF(center=(0.0, 0.0, 0.0), radius=0.5)
         cams = field.default_cameras(10, 96, 96)
         cfg = nd.load_config("fast", overrides={"train": {"steps": 250}, "eval": {"width": 128, "fps_frames": 5},
                                                 "texture": {"resolution": 128, "num_codes": 128}})
         result = nd.distill(field, cams, cfg, out=out, progress=False, log=lambda m: None)
-    finally:
-        torch.set_num_threads(old)
     return result, out

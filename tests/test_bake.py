@@ -66,6 +66,48 @@ def test_bundle_round_trip_exact(tmp_path):
     assert b.float16_nbytes() == 12 * 20 * 8 * 2
 
 
+def test_bundle_is_encoded_once_until_it_changes(tmp_path, monkeypatch):
+    """save, nbytes_on_disk and feature_nbytes share one encoding; any change (an attribute set, an array
+    changed in place, the manifest edited) encodes afresh, and the bytes always equal a fresh encoding's."""
+    from neuras_distill.bake.bundle import Bundle
+
+    encodes = []
+    encode_files = Bundle._encode_files
+
+    def counting(self):
+        encodes.append(1)
+        return encode_files(self)
+
+    monkeypatch.setattr(Bundle, "_encode_files", counting)
+    b = bake(make_model(), quad_mesh(), (0.1, 0.2, 0.3), extra_manifest={"scene": "test"})
+    b.save(tmp_path / "one")
+    total, features = b.nbytes_on_disk(), b.feature_nbytes()
+    assert len(encodes) == 1
+    assert total == sum(p.stat().st_size for p in (tmp_path / "one").iterdir())
+    assert features == sum((tmp_path / "one" / n).stat().st_size
+                           for n in ("feature_index.png", "codebook.npy"))
+
+    def fresh(bundle):                  # what an encoding without the kept bytes gives
+        return encode_files(bundle)
+
+    changes = [lambda: setattr(b, "plain_rgb", np.full((12, 20, 3), 7, np.uint8)),  # an attribute set
+               lambda: b.plain_rgb.__setitem__((0, 0, 0), 200),                      # changed in place
+               lambda: b.textures["u_index"].__setitem__((0, 0), (b.textures["u_index"][0, 0] + 1) % 8),
+               lambda: b.mesh.vertices.__setitem__((0, 0), 0.5),
+               lambda: b.manifest.update(scene="other"),                               # the manifest edited
+               lambda: setattr(b, "fragment_shader", b.fragment_shader + "\n")]
+    for i, change in enumerate(changes):
+        before = b._encode()
+        change()
+        after = b._encode()
+        assert len(encodes) == 2 + i, f"change {i} was not noticed"
+        assert after != before and after == fresh(b)
+        b.nbytes_on_disk()
+        b.save(tmp_path / f"c{i}")
+        assert len(encodes) == 2 + i, f"change {i}: encoded again without a change"
+        assert {p.name: p.read_bytes() for p in (tmp_path / f"c{i}").iterdir()} == after
+
+
 def test_load_bundle_missing_or_corrupt(tmp_path):
     with pytest.raises(BadInputError, match="does not exist"):
         load_bundle(tmp_path / "nothing")

@@ -10,12 +10,11 @@ import json
 from pathlib import Path
 
 import pytest
-import torch
 
 from neuras_distill.cli import main
 
 DATA = Path(__file__).parent / "data"
-pytestmark = [pytest.mark.gl, pytest.mark.slow]
+pytestmark = [pytest.mark.gl, pytest.mark.slow, pytest.mark.usefixtures("two_torch_threads")]
 
 FAST = """
 [teacher]
@@ -37,7 +36,6 @@ runtime_steps = [16]
 
 
 def _run(tmp_path, args):
-    torch.set_num_threads(2)
     cfg = tmp_path / "fast.toml"
     cfg.write_text(FAST)
     out = tmp_path / "run"

@@ -140,7 +140,7 @@ def test_field_without_surface_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_soft_fringe_gets_a_shell_and_the_facing_input():
+def test_soft_fringe_gets_a_shell_and_the_facing_input(two_torch_threads):
     """The gradient ball's fringe is many pixels wide: the mesh moves out until it covers the field's partly
     opaque pixels, the shader gets |n . d| (and the shell's shader the view direction; the core's drops it, the
     ball being matte), the bundle plays what torch computes, and against the single mesh at the surface level
@@ -148,7 +148,6 @@ def test_soft_fringe_gets_a_shell_and_the_facing_input():
     own) the interior gains most, the core sitting where the colour comes from (session 8: interior 28.6 ->
     34.3 dB, band 21.8 -> 22.6 dB, overall 32.7 -> 34.8 dB; session 7, core at the surface level: band 21.9
     -> 23.3 dB)."""
-    torch.set_num_threads(2)
     field = nd.make_scene("gradient-ball")
     cams = field.default_cameras(24, 256, 144, held_out_every=6)     # the fast preset holds out every 6th
     base = {"train": {"steps": 800}, "eval": {"width": 256, "fps_frames": 3}, "teacher": {"train_width": 256},

@@ -310,6 +310,29 @@ def test_cull_margin_keeps_what_nearby_cameras_see():
     assert missed_by(kept) == 0
 
 
+def test_raycast_first_hit_miss_and_signed_distance():
+    """geometry.raycast (the open3d wrapper): face ids with -1 / inf for a miss, signed distance of a cube."""
+    from neuras_distill.geometry.raycast import cast_rays, raycasting_scene, signed_distance
+
+    # the unit cube [0, 1]^3 as 12 triangles (faces 0, 1 on z = 0, faces 2, 3 on z = 1)
+    v = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], np.float64)
+    f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
+                  [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]], np.int64)
+    scene = raycasting_scene(v, f)
+    rays = np.array([[0.25, 0.75, 3.0, 0, 0, -2.0],      # straight down onto the top (z = 1) at t = 1
+                     [0.25, 0.75, -3.0, 0, 0, 1.0],      # straight up onto the bottom at t = 3
+                     [3.0, 3.0, 3.0, 0, 0, 1.0]], np.float32)   # away: a miss
+    ids, t_hit = cast_rays(scene, rays)
+    assert ids.dtype == np.int64 and ids.shape == t_hit.shape == (3,)
+    assert ids[0] in (2, 3) and ids[1] in (0, 1) and ids[2] == -1
+    np.testing.assert_allclose(t_hit[:2], [1.0, 3.0], atol=1e-6)
+    assert np.isinf(t_hit[2])
+    pts = np.array([[[0.5, 0.5, 0.5], [0.5, 0.5, 1.25]], [[0.1, 0.5, 0.5], [2.0, 0.5, 0.5]]])
+    d = signed_distance(scene, pts, nsamples=5)
+    assert d.shape == (2, 2) and d.dtype == np.float32
+    np.testing.assert_allclose(d, [[-0.5, 0.25], [-0.1, 1.0]], atol=1e-6)
+
+
 # ---------------------------------------------------------------------------------------------- unwrap
 def uv_overlap_fraction(uvs, faces, n=256):
     """Fraction of covered sample points (n x n texel centres) covered by more than one uv triangle."""

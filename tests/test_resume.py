@@ -101,18 +101,14 @@ def test_a_run_killed_during_distillation_resumes_and_loses_nothing(runs):
     assert not list((out / "work").glob("checkpoints/*")) and not list((out / "work").rglob(".*tmp*"))
 
 
-def test_a_changed_setting_recomputes_exactly_the_stages_downstream_of_it(tmp_path):
+def test_a_changed_setting_recomputes_exactly_the_stages_downstream_of_it(tmp_path, torch_threads):
     """In process, into one run folder: the same settings reuse everything; more steps re-train (the surface
     stays, the atlas side may follow the budget); another face budget re-meshes, the teachers stay."""
-    import torch
-
     import neuras_distill as nd
     from neuras_distill.scenes.analytic import SphereSDF
 
     field = SphereSDF(center=(0.0, 0.0, 0.0), radius=0.5)
     cams = field.default_cameras(10, 96, 96)
-    old = torch.get_num_threads()
-    torch.set_num_threads(2)
 
     def run(**overrides):
         cfg = nd.load_config("fast", overrides={"eval": {"width": 128, "fps_frames": 3},
@@ -120,13 +116,11 @@ def test_a_changed_setting_recomputes_exactly_the_stages_downstream_of_it(tmp_pa
                                                 **overrides})
         return nd.distill(field, cams, cfg, out=tmp_path / "run", progress=False, log=lambda m: None).report
 
-    try:
+    with torch_threads(2):
         first = run(train={"steps": 200})
         same = run(train={"steps": 200})
         longer = run(train={"steps": 300})
         coarser = run(train={"steps": 300}, geometry={"face_budget": 3000})
-    finally:
-        torch.set_num_threads(old)
     assert first["resumed"]["stages"] == []
     assert same["resumed"]["stages"] == ["teacher", "plan", "surface", "geometry", "gbuffer", "distill", "field_views"]
     assert same["psnr"] == first["psnr"]

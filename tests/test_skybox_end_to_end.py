@@ -32,15 +32,15 @@ class SkySphere(SphereSDF):
 
 
 @pytest.fixture(scope="module")
-def sky_run(tmp_path_factory):
-    torch.set_num_threads(2)
+def sky_run(tmp_path_factory, torch_threads):
     out = tmp_path_factory.mktemp("sky") / "run"
     field = SkySphere(center=FAR, radius=0.5)
     cams = field.default_cameras(10, 96, 64)
     cfg = nd.load_config("fast", overrides={"train": {"steps": 300}, "eval": {"width": 128, "fps_frames": 5},
                                             "texture": {"resolution": 128, "num_codes": 128},
                                             "skybox": {"layers": 2, "resolution": 16, "num_codes": 64}})
-    result = nd.distill(field, cams, cfg, out=out, progress=False, log=lambda m: None)
+    with torch_threads(2):
+        result = nd.distill(field, cams, cfg, out=out, progress=False, log=lambda m: None)
     return result, out
 
 

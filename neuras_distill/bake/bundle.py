@@ -42,6 +42,7 @@ import hashlib
 import io
 import json
 from dataclasses import dataclass, field
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +84,11 @@ class Bundle:
         plain_rgb: optional uint8 (H, W, 3) plain RGB texture over the mesh's UVs (row 0 = v = 0), saved as
             plain_rgb.png; not a sampler of the fragment shader (so not in ``textures``). None: not baked
             (bundles from before session 8).
+
+    Encoding (the files' bytes, ``_encode``) is done once and kept: :meth:`save`, :meth:`nbytes_on_disk` and
+    :meth:`feature_nbytes` share it. The kept bytes carry a fingerprint of everything they are made from (a
+    hash of the arrays' bytes, the shaders and the manifest; far cheaper than the PNG and zip compression), so
+    any change to the bundle, an attribute set or an array changed in place, encodes it afresh.
     """
 
     mesh: MeshData
@@ -93,6 +99,8 @@ class Bundle:
     vertex_shader: str | None = None
     sky_fragment_shader: str | None = None
     plain_rgb: np.ndarray | None = None
+    _encoded: tuple[bytes, dict[str, bytes]] | None = field(default=None, init=False, repr=False,
+                                                            compare=False)
 
     @property
     def origin(self) -> np.ndarray:
@@ -112,7 +120,39 @@ class Bundle:
                                  f"{self.plain_rgb.shape}")
 
     # ------------------------------------------------------------------ encoding
+    def _fingerprint(self) -> bytes:
+        """A digest of everything :meth:`_encode_files` reads (array bytes with dtype and shape, shaders,
+        background colour, manifest): equal digests, equal files."""
+        h = hashlib.blake2b(digest_size=32)
+
+        def add(value: Any) -> None:
+            if isinstance(value, np.ndarray):
+                a = np.ascontiguousarray(value)
+                h.update(f"array {a.dtype.str} {a.shape}|".encode())
+                h.update(a.reshape(-1).view(np.uint8))
+            else:
+                h.update(f"{type(value).__name__} {value!r}|".encode())
+
+        m = self.mesh
+        for value in (m.vertices, m.uvs, m.faces, m.core_faces, self.fragment_shader, self.vertex_shader,
+                      self.sky_fragment_shader, self.background_color, self.plain_rgb):
+            add(value)
+        for name in sorted(self.textures):
+            add(name)
+            add(np.asarray(self.textures[name]))
+        add(json.dumps(self.manifest, sort_keys=True, default=repr))
+        return h.digest()
+
     def _encode(self) -> dict[str, bytes]:
+        """{file name: bytes} of the saved bundle, encoded once and reused while the bundle is unchanged
+        (see the class docstring). A new dict each call; the bytes are shared."""
+        key = self._fingerprint()
+        if self._encoded is None or self._encoded[0] != key:
+            self._encoded = (key, self._encode_files())
+        return dict(self._encoded[1])
+
+    def _encode_files(self) -> dict[str, bytes]:
+        """Encode every file of the bundle: PNGs, the compressed mesh, the manifest with the files' hashes."""
         files: dict[str, bytes] = {}
         buf = io.BytesIO()
         m = self.mesh
@@ -154,7 +194,7 @@ class Bundle:
         return d
 
     def nbytes_on_disk(self) -> int:
-        """Total bytes the saved files take (computed by encoding, same bytes as ``save`` writes)."""
+        """Total bytes the saved files take (the same encoding ``save`` writes, encoded once)."""
         return sum(len(v) for v in self._encode().values())
 
     def feature_nbytes(self) -> int:

@@ -1,9 +1,8 @@
-"""Visibility culling: drop faces that no camera near the training set sees (the only open3d importer in
-geometry/).
+"""Visibility culling: drop faces that no camera near the training set sees.
 
 The pixel-centre rays of every camera (``Cameras.rays`` at a subsampled resolution, at most
-``max_rays_per_camera`` rays, same field of view) are cast against the mesh with open3d's
-``RaycastingScene``; a face is kept when at least one ray hits it first. Because the rays are subsampled,
+``max_rays_per_camera`` rays, same field of view) are cast against the mesh (:mod:`.raycast`, open3d's
+``RaycastingScene``); a face is kept when at least one ray hits it first. Because the rays are subsampled,
 small or grazing faces near silhouettes can be missed; ``dilate=True`` (default) also keeps the one-ring
 neighbours (faces sharing a vertex) of every seen face so no cracks open at silhouettes. Unreferenced vertices
 are then dropped.
@@ -25,11 +24,11 @@ import math
 import time
 
 import numpy as np
-import open3d as o3d
 import torch
 
 from ..errors import BadInputError
 from .mesh import MeshData
+from .raycast import cast_rays, raycasting_scene
 
 
 def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, scene=None,
@@ -43,7 +42,6 @@ def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, sce
     scale = min(1.0, math.sqrt(max(1, int(max_rays_per_camera)) / float(w * h)))
     if scale < 1.0:
         cameras = cameras.resized(max(1, int(w * scale)), max(1, int(h * scale)))
-    invalid = o3d.t.geometry.RaycastingScene.INVALID_ID
     seen = np.zeros(mesh.num_faces, dtype=bool)
     distances = np.full(len(cameras), np.inf)
     normals = None
@@ -52,15 +50,14 @@ def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, sce
         o, d = cameras.rays(i)
         rays = np.concatenate([o.reshape(-1, 3).numpy(), d.reshape(-1, 3).numpy()], axis=1).astype(np.float32)
         total += rays.shape[0]
-        hits = scene.cast_rays(o3d.core.Tensor(rays))
-        ids = hits["primitive_ids"].numpy().reshape(-1)
-        hit = ids != invalid
+        ids, t_hit = cast_rays(scene, rays)
+        hit = ids >= 0
         if front_only:
             normals = normals if normals is not None else mesh.face_normals()
-            hit[hit] = np.einsum("ij,ij->i", normals[ids[hit].astype(np.int64)], rays[hit, 3:]) < 0
-        seen[ids[hit].astype(np.int64)] = True
+            hit[hit] = np.einsum("ij,ij->i", normals[ids[hit]], rays[hit, 3:]) < 0
+        seen[ids[hit]] = True
         if hit.any():
-            distances[i] = float(np.median(hits["t_hit"].numpy().reshape(-1)[hit]))
+            distances[i] = float(np.median(t_hit[hit]))
     return seen, total, distances
 
 
@@ -83,7 +80,6 @@ def missed_opaque_fraction(mesh: MeshData, cameras, opacity: np.ndarray, *, thre
     from scipy import ndimage
 
     scene = _raycasting_scene(mesh)
-    invalid = o3d.t.geometry.RaycastingScene.INVALID_ID
     missed = wanted = 0
     for i in range(len(cameras)):
         want = np.asarray(opacity[i])[::stride, ::stride] >= threshold
@@ -92,7 +88,7 @@ def missed_opaque_fraction(mesh: MeshData, cameras, opacity: np.ndarray, *, thre
         o, d = cameras.rays(i)
         o, d = o[::stride, ::stride], d[::stride, ::stride]
         rays = np.concatenate([o.reshape(-1, 3).numpy(), d.reshape(-1, 3).numpy()], axis=1).astype(np.float32)
-        hit = (scene.cast_rays(o3d.core.Tensor(rays))["primitive_ids"].numpy() != invalid).reshape(want.shape)
+        hit = (cast_rays(scene, rays)[0] >= 0).reshape(want.shape)
         want &= ndimage.binary_dilation(hit, iterations=reach) if hit.any() else False
         missed += int((want & ~hit).sum())
         wanted += int(want.sum())
@@ -100,10 +96,8 @@ def missed_opaque_fraction(mesh: MeshData, cameras, opacity: np.ndarray, *, thre
 
 
 def _raycasting_scene(mesh: MeshData):
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)))
-    return scene
+    """The ray-casting scene of ``mesh`` (vertices (V, 3), faces (F, 3)) in its own frame."""
+    return raycasting_scene(mesh.vertices, mesh.faces)
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:

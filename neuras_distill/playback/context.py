@@ -1,13 +1,17 @@
 """Headless OpenGL context for the playback stage (G-buffer rasterization, bundle playback, viewer).
 
 This module owns context creation: it is the only place that decides *how* a context is made (EGL first,
-then moderngl's default standalone backend) and it caches one context per process. moderngl is imported
-lazily inside functions, so ``import neuras_distill`` (and this module) stays cheap and works on machines
-without any GL libraries; the failure only surfaces, as :class:`GLUnavailable` with the reason, when a
-context is actually needed.
+then moderngl's default standalone backend) and it caches one context per process. It is also the only
+module that imports moderngl: the other playback modules get the module (its flags such as ``NEAREST`` and
+``TRIANGLES``, its ``Error``) from :func:`moderngl_module`, and the viewer window wraps its own GL context
+with :func:`adopt_current_context`. moderngl is imported lazily inside functions, so ``import neuras_distill``
+(and this module) stays cheap and works on machines without any GL libraries; the failure only surfaces, as
+:class:`GLUnavailable` with the reason, when a context is actually needed.
 
 Public API:
     get_context() -> moderngl.Context      cached, GL >= 3.3 core
+    adopt_current_context() -> Context     wraps the GL context current on this thread (a window's)
+    moderngl_module() -> module            moderngl itself, imported on first call
     gl_available() -> (bool, reason)       for tests / CLI to skip or explain
     gl_info(ctx=None) -> dict              renderer, vendor, version strings
     GLUnavailable(RuntimeError)            raised when no context can be made
@@ -31,12 +35,29 @@ class GLUnavailable(RuntimeError):
     """No usable OpenGL (>= 3.3 core) context can be created here; the message says why and what to install."""
 
 
-def _create_context():
+def moderngl_module():
+    """The moderngl module (imported here on first call: the one moderngl import of the package).
+
+    Callers use it for moderngl's flags and types (``NEAREST``, ``TRIANGLES``, ``CULL_FACE``, ``Error``, ...);
+    contexts come from :func:`get_context` or :func:`adopt_current_context`.
+
+    Raises :class:`GLUnavailable` when moderngl cannot be imported (not installed, or a broken binary wheel).
+    """
     try:
         import moderngl  # noqa: PLC0415 (lazy on purpose)
     except Exception as exc:  # ImportError, or a broken binary wheel
         raise GLUnavailable(f"moderngl cannot be imported ({exc}); pip install moderngl glcontext") from None
+    return moderngl
 
+
+def adopt_current_context():
+    """A moderngl context wrapping the OpenGL (>= 3.3 core) context current on this thread, e.g. a glfw
+    window's after ``make_context_current``. Not cached: it belongs to the window that made it."""
+    return moderngl_module().create_context(require=MIN_GL_VERSION)
+
+
+def _create_context():
+    moderngl = moderngl_module()
     attempts = []
     for label, kwargs in (("EGL", {"standalone": True, "backend": "egl"}), ("default", {"standalone": True})):
         try:

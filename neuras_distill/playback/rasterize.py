@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.mesh import MeshData
-from .context import get_context
+from .context import get_context, moderngl_module
 from .gbuffer import GBuffer
 from .projection import camera_near_far, gl_matrix, mesh_bounds, mvp_for, view_matrix
 from .shaders import GBUFFER_FRAGMENT_SHADER, VERTEX_SHADER
@@ -38,8 +38,7 @@ def set_raster_state(ctx, cull_back_faces: bool) -> None:
     """The one raster state shared by G-buffers and playback: depth test "<", no blending, and back faces
     (clockwise in the window: faces seen from inside a closed mesh) culled when ``cull_back_faces``. Culling
     changes nothing visible on a closed mesh and skips shading the hidden half of it."""
-    import moderngl
-
+    moderngl = moderngl_module()
     ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
     ctx.enable(moderngl.DEPTH_TEST)
     ctx.depth_func = "<"
@@ -95,8 +94,7 @@ def draw_mesh(vao, program, layers: list[tuple[float, int, int]]) -> None:
     """Draw ``mesh_layers(mesh)`` with ``vao`` (from :func:`mesh_vertex_array`): per layer set ``u_layer`` and,
     where the program has it, ``u_face_offset`` (the first face, so gl_PrimitiveID + offset is the global face
     index), then draw that range of the index buffer."""
-    import moderngl  # noqa: PLC0415 (lazy)
-
+    moderngl = moderngl_module()
     for layer, first, count in layers:
         if "u_layer" in program:
             program["u_layer"].value = layer
@@ -135,7 +133,7 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
     if mesh.num_faces == 0:
         return _empty_gbuffer(n, h, w)
     ctx = ctx if ctx is not None else get_context()
-    import moderngl  # noqa: PLC0415 (lazy: only the playback modules import moderngl)
+    moderngl = moderngl_module()
 
     bounds = mesh_bounds(mesh.vertices)
     uv = np.empty((n, h, w, 2), np.float32)

@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from ..errors import BadInputError
-from .context import get_context
+from .context import get_context, moderngl_module
 from .projection import gl_matrix, mesh_bounds, near_far_for, projection_matrix, screen_box, view_matrix
 from .rasterize import _check_mesh, draw_mesh, mesh_layers, mesh_vertex_array, set_raster_state
 from .shaders import VERTEX_SHADER, shader_variant
@@ -61,8 +61,7 @@ class BundleRenderer:
     """
 
     def __init__(self, bundle, ctx=None, silhouette_blend: bool | None = None):
-        import moderngl  # noqa: PLC0415 (lazy)
-
+        moderngl = moderngl_module()
         self._mgl = moderngl
         self.ctx = ctx if ctx is not None else get_context()
         self.bundle = bundle

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from .camera_control import CameraController, mean_up, pivot_distance
+from .context import adopt_current_context
 from .projection import mesh_bounds
 from .view_modes import VIEW_MODES, mode_bundle
 
@@ -139,9 +140,7 @@ class WindowPlayer:
                                 f"apt-get install libgl1-mesa-dri libglx-mesa0) or {_display_hint()}")
         glfw.make_context_current(self.window)
         glfw.swap_interval(0)          # draw as fast as the bundle plays: the title shows the real frame time
-        import moderngl  # noqa: PLC0415
-
-        self.ctx = moderngl.create_context(require=330)
+        self.ctx = adopt_current_context()
         self.size = glfw.get_framebuffer_size(self.window)       # pixels (HiDPI screens: more than the window)
         self.scale = self.size[1] / h0
         glfw.set_cursor_pos_callback(self.window, self._on_cursor)

@@ -8,15 +8,16 @@ This module owns:
   ``"gradient-ball"`` (:mod:`.gradient_ball`, a density field only).
 * :class:`BunnyField`: the real Stanford bunny (``neuras_distill/data/bunny.obj``, y-up in the file) rotated
   to z-up, scaled to 1 unit tall, standing on a rounded disc. Its SDF is computed once with open3d
-  (``RaycastingScene.compute_signed_distance`` with a majority vote over several rays for the sign, since
-  the scan has small holes; they all sit at the bottom, inside the base) and baked to a float32 grid cached
-  on disk (``$NEURAS_CACHE_DIR`` or ``~/.cache/neuras-distill/``, keyed by a hash of the OBJ bytes and the
-  bake parameters, written atomically). Evaluation: trilinear ``grid_sample`` of the bunny grid, united
-  (min) with the analytic SDF of the base; normals from a trilinear gradient grid (central differences).
-  Radiance: procedural albedo with fine detail times soft diffuse lighting, plus a Blinn-Phong lobe on
-  the bunny (view-dependent), clipped to [0, 1].
+  (``geometry.raycast.signed_distance``: ``RaycastingScene.compute_signed_distance`` with a majority vote
+  over several rays for the sign, since the scan has small holes; they all sit at the bottom, inside the
+  base) and baked to a float32 grid cached on disk (``$NEURAS_CACHE_DIR`` or ``~/.cache/neuras-distill/``,
+  keyed by a hash of the OBJ bytes and the bake parameters, written atomically). Evaluation: trilinear
+  ``grid_sample`` of the bunny grid, united (min) with the analytic SDF of the base; normals from a
+  trilinear gradient grid (central differences). Radiance: procedural albedo with fine detail times soft
+  diffuse lighting, plus a Blinn-Phong lobe on the bunny (view-dependent), clipped to [0, 1].
 
-open3d is imported lazily inside :func:`_bake_bunny_sdf` only (it is the one place the scenes use it).
+open3d is reached only through :mod:`neuras_distill.geometry.raycast` (its one importer), which
+:func:`_bake_bunny_sdf` imports lazily: the scenes need it only when a bunny grid is baked.
 World frame of every scene: z up, units ~ the object's size (the bunny is 1 unit tall).
 """
 
@@ -126,18 +127,14 @@ def _scene_aabb(vertices: np.ndarray) -> np.ndarray:
 def _bake_bunny_sdf(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, cell: float,
                     shape: tuple[int, int, int]) -> np.ndarray:
     """Signed distance of the bunny mesh at the grid points, float32 array indexed [iz, iy, ix]."""
-    import open3d as o3d  # lazy: the only open3d use in scenes/
+    from ..geometry.raycast import raycasting_scene, signed_distance  # lazy: it imports open3d
 
-    mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(vertices.astype(np.float32))
-    mesh.triangle.indices = o3d.core.Tensor(faces.astype(np.int32))
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(mesh)
+    scene = raycasting_scene(vertices, faces)
     nz, ny, nx = shape
     axes = [origin[k] + cell * np.arange(n, dtype=np.float64) for k, n in enumerate((nx, ny, nz))]
     zz, yy, xx = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     pts = np.stack([xx, yy, zz], axis=-1).astype(np.float32)
-    sdf = scene.compute_signed_distance(o3d.core.Tensor(pts), nsamples=SIGN_SAMPLES).numpy()
+    sdf = signed_distance(scene, pts, SIGN_SAMPLES)
     return _fix_sign_islands(sdf.astype(np.float32).reshape(shape))
 
 

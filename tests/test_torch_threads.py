@@ -1,0 +1,38 @@
+"""tests/conftest.py's thread-count fixtures: each sets torch's thread count for its test or block and puts
+the previous count back, also when the block raises; the autouse guard catches a test that does not."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+
+def test_two_torch_threads_sets_two(two_torch_threads):
+    assert torch.get_num_threads() == 2
+
+
+def test_one_torch_thread_sets_one(one_torch_thread):
+    assert torch.get_num_threads() == 1
+
+
+def test_torch_threads_restores_the_count_after_the_block_even_when_it_raises(torch_threads):
+    before = torch.get_num_threads()
+    with pytest.raises(RuntimeError, match="inside"):
+        with torch_threads(3):
+            assert torch.get_num_threads() == 3
+            raise RuntimeError("inside")
+    assert torch.get_num_threads() == before
+
+
+def test_the_guard_fails_a_test_that_leaves_the_count_changed():
+    """The autouse guard's check, around a block that leaks a changed count: it fails and puts it back."""
+    from conftest import _thread_count_kept
+
+    before = torch.get_num_threads()
+    with pytest.raises(pytest.fail.Exception, match=f"left torch's thread count at {before + 1}"):
+        with _thread_count_kept():
+            torch.set_num_threads(before + 1)               # the leak
+    assert torch.get_num_threads() == before
+    with _thread_count_kept():                              # a block that restores it passes
+        torch.set_num_threads(before + 1)
+        torch.set_num_threads(before)
