@@ -28,8 +28,8 @@ import numpy as np
 import scipy.linalg
 import torch
 
-from ..errors import BadInputError, require
-from ..render.cameras import Cameras
+from neuras_distill.errors import BadInputError, require
+from neuras_distill.render.cameras import Cameras
 
 _WORLD_RE = re.compile(r"^world_mat_(\d+)$")
 
