@@ -1,4 +1,5 @@
-"""NeuS / IDR camera files (``cameras_sphere.npz``): projection matrices to :class:`Cameras`, and the scale matrix.
+"""NeuS / IDR camera files (``cameras_sphere.npz``, docs/formats.md §2.3): projection matrices to
+:class:`Cameras`, and the scale matrix.
 
 This module owns:
 

@@ -4,7 +4,7 @@ Tells Totoro97/NeuS (``sdf_network_fine``) from instant-nsr-pl (a Lightning ``st
 or ``variance.variance``) by the loaded keys (:func:`detect_form`), reads the cameras (``cameras_sphere.npz``,
 whose scale matrix places the field in the world, or ``transforms.json``), builds
 :class:`~.mlp_field.NeuSField` or :class:`~.hashgrid_field.HashGridNeuSField`, and optionally wraps it in a
-VolSDF Laplace density (:func:`with_density`). The checkpoint itself is read by
+VolSDF Laplace density (:func:`with_density`, docs/formats.md §2.4). The checkpoint itself is read by
 :func:`neuras_distill.fields.checkpoint.load_torch_checkpoint` (weights only, never unpickling code).
 """
 
