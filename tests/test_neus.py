@@ -523,7 +523,7 @@ def test_laplace_density_option(tmp_path):
     x = _points(20, 9)
     sdf_field = _save_and_load(tmp_path, neus_ckpt())
     with torch.no_grad():
-        from neuras_distill.scenes.analytic import laplace_density
+        from neuras_distill.fields.wrappers import laplace_density
 
         torch.testing.assert_close(field.geometry(x), laplace_density(sdf_field.geometry(x), 0.01))
     check_field(field)

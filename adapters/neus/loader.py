@@ -60,7 +60,7 @@ def _read_cameras(cameras, width, height, nsr_cfg: dict | None):
 def with_density(field, density: str = "neus", beta: float | None = None):
     """``field`` itself (``density="neus"``) or its VolSDF Laplace density view (``"laplace"``, kind
     ``"density"``) with ``beta`` in world units (default ``1 / field.inv_s``: the NeuS ramp's width)."""
-    from neuras_distill.scenes.analytic import SDFToDensityField
+    from neuras_distill.fields.wrappers import SDFToDensityField
 
     require(density in ("neus", "laplace"), f"density must be 'neus' or 'laplace', got {density!r}")
     if density == "neus":
