@@ -4,7 +4,7 @@
 
 The result, ``tests/data/ngp/bunny.ingp`` (or ``<scene>.ingp`` with ``--scene``), is a committed test
 fixture: a field with real training artefacts (soft surfaces, floaters, noise in empty space) for
-``neuras-distill from-ngp``, in exactly the layout instant-ngp writes (checkpoint-formats.md §1), so the
+``neuras-distill from-ngp``, in exactly the layout instant-ngp writes (docs/formats.md §1), so the
 loader is exercised on what a real snapshot holds.
 
 What it does (all in instant-ngp's "ngp" space, §1.8, aabb_scale 1, so network space = ngp space):
@@ -71,6 +71,7 @@ torch build with one thread).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import sys
 import time
@@ -82,15 +83,20 @@ import torch
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))  # run from a checkout without installing
+if importlib.util.find_spec("neuras_distill_adapters") is None:  # not installed: adapters/ is that package
+    _spec = importlib.util.spec_from_file_location("neuras_distill_adapters", ROOT / "adapters" / "__init__.py",
+                                                   submodule_search_locations=[str(ROOT / "adapters")])
+    sys.modules["neuras_distill_adapters"] = importlib.util.module_from_spec(_spec)
+    _spec.loader.exec_module(sys.modules["neuras_distill_adapters"])
 
 from neuras_distill.components.tcnn import (HashGridConfig, HashGridEncoding, TcnnMLP,  # noqa: E402
                                             ngp_per_level_scale, sh_encode_deg4)
-from neuras_distill.fields.ngp import NgpField  # noqa: E402
-from neuras_distill.fields.ngp_frames import NgpFrame  # noqa: E402
-from neuras_distill.fields.ngp_snapshot import (NgpCamera, build_snapshot_tree, read_snapshot,  # noqa: E402
-                                                write_snapshot)
 from neuras_distill.render.volume import VolumeRenderer  # noqa: E402
 from neuras_distill.scenes.synthetic import make_scene  # noqa: E402
+from neuras_distill_adapters.instant_ngp.field import NgpField  # noqa: E402
+from neuras_distill_adapters.instant_ngp.frames import NgpFrame  # noqa: E402
+from neuras_distill_adapters.instant_ngp.snapshot import (NgpCamera, build_snapshot_tree,  # noqa: E402
+                                                          read_snapshot, write_snapshot)
 
 DEFAULT_OUT = ROOT / "tests" / "data" / "ngp" / "bunny.ingp"
 MAX_FILE_BYTES = 2 * 1024 * 1024

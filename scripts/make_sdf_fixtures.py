@@ -18,7 +18,7 @@ Writes, in the exact original file formats:
 Fitting is supervised on the synthetic scene: L1 regression of the SDF near the surface and in the volume plus
 an eikonal term, and colour regression at near-surface points with random front-facing view directions
 (targets from the scene's ``radiance``, view-dependent highlight included). The networks are then loaded with
-the real loaders (:mod:`neuras_distill.fields.neus`) and rendered against the scene; the PSNR is printed.
+the real loaders (:mod:`neuras_distill_adapters.neus`) and rendered against the scene; the PSNR is printed.
 
 Usage: ``python scripts/make_sdf_fixtures.py [--which neus|nsr|all] [--iters N] [--out tests/data/sdf]``.
 One CPU thread; each fixture takes a few minutes.
@@ -39,9 +39,9 @@ from torch import nn
 from torch.nn.utils.parametrizations import weight_norm
 
 from neuras_distill.components.tcnn import HashGridConfig, HashGridEncoding, TcnnMLP, sh_encode_deg4
-from neuras_distill.fields.neus import positional_encoding
-from neuras_distill.fields.neus_cameras import write_neus_npz
 from neuras_distill.scenes.synthetic import make_scene
+from neuras_distill_adapters.neus.cameras import write_neus_npz
+from neuras_distill_adapters.neus.layers import positional_encoding
 
 OUT = Path(__file__).resolve().parent.parent / "tests" / "data" / "sdf"
 IMAGE_SIZE = 400
@@ -197,7 +197,7 @@ def _legacy_wn(module: nn.ModuleList) -> dict:
 
 
 def make_neus(scene, out: Path, iters: int) -> dict:
-    from neuras_distill.fields.neus import load_neus_checkpoint
+    from neuras_distill_adapters.neus.loader import load_neus_checkpoint
 
     print("NeuS (MLP) fixture")
     lo, hi = scene.aabb
@@ -269,7 +269,7 @@ class VanillaMLP(nn.Module):
 
 
 def make_nsr(scene, out: Path, iters: int) -> dict:
-    from neuras_distill.fields.neus import load_neus_checkpoint
+    from neuras_distill_adapters.neus.loader import load_neus_checkpoint
 
     print("instant-nsr-pl (hash grid) fixture")
     torch.manual_seed(1)

@@ -10,7 +10,8 @@ import torch
 
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.base import Field, check_field, evaluate_chunked
-from neuras_distill.scenes.analytic import BoxSDF, SDFToDensityField, SphereSDF, TorusSDF, laplace_density
+from neuras_distill.fields.wrappers import SDFToDensityField, laplace_density
+from neuras_distill.scenes.analytic import BoxSDF, SphereSDF, TorusSDF
 from neuras_distill.scenes.synthetic import SCENES, BunnyField, make_scene
 
 

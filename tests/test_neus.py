@@ -20,10 +20,11 @@ from neuras_distill.components.tcnn import HashGridConfig, HashGridEncoding, Tcn
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.base import check_field
 from neuras_distill.fields.checkpoint import check_finite, load_torch_checkpoint
-from neuras_distill.fields.neus import (HashGridNeuSField, NeuSField, infer_neus_architecture,
-                                        load_neus_checkpoint)
-from neuras_distill.fields.neus_cameras import cameras_from_neus_npz, decompose_projection
 from neuras_distill_adapters.neus import NeuSAdapter
+from neuras_distill_adapters.neus.cameras import cameras_from_neus_npz, decompose_projection
+from neuras_distill_adapters.neus.hashgrid_field import HashGridNeuSField
+from neuras_distill_adapters.neus.loader import load_neus_checkpoint
+from neuras_distill_adapters.neus.mlp_field import NeuSField, infer_neus_architecture
 
 DATA = Path(__file__).parent / "data" / "sdf"
 
@@ -522,7 +523,7 @@ def test_laplace_density_option(tmp_path):
     x = _points(20, 9)
     sdf_field = _save_and_load(tmp_path, neus_ckpt())
     with torch.no_grad():
-        from neuras_distill.scenes.analytic import laplace_density
+        from neuras_distill.fields.wrappers import laplace_density
 
         torch.testing.assert_close(field.geometry(x), laplace_density(sdf_field.geometry(x), 0.01))
     check_field(field)

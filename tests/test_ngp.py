@@ -1,6 +1,6 @@
 """Instant-NGP snapshots: frames, container, parameter slicing, forward model, occupancy, bad input.
 
-Snapshots are written by :func:`make_snapshot` from the format description (checkpoint-formats.md §1); the
+Snapshots are written by :func:`make_snapshot` from the format description (docs/formats.md §1); the
 hash grid itself is checked against a brute-force loop in test_tcnn.py.
 """
 
@@ -10,6 +10,7 @@ import gzip
 import json
 import math
 import random
+import zlib
 
 import msgpack
 import numpy as np
@@ -18,11 +19,13 @@ import torch
 
 from neuras_distill.components.tcnn import HashGridConfig, HashGridEncoding, mlp_param_count, sh_encode_deg4
 from neuras_distill.errors import BadInputError
-from neuras_distill.fields.ngp import NgpField
-from neuras_distill.fields.ngp_frames import NgpFrame
-from neuras_distill.fields.ngp_snapshot import (GRID_SIZE, NgpCamera, build_snapshot_tree, morton3d,
-                                                morton_to_xyz, read_snapshot, write_snapshot, xyz_to_morton)
 from neuras_distill.render.cameras import Cameras
+from neuras_distill_adapters.instant_ngp import InstantNGPAdapter
+from neuras_distill_adapters.instant_ngp.field import NgpField
+from neuras_distill_adapters.instant_ngp.frames import NgpFrame
+from neuras_distill_adapters.instant_ngp.snapshot import (GRID_SIZE, NgpCamera, build_snapshot_tree, morton3d,
+                                                          morton_to_xyz, read_snapshot, write_snapshot,
+                                                          xyz_to_morton)
 
 SMALL_GRID = HashGridConfig(n_levels=4, n_features_per_level=4, log2_hashmap_size=10, base_resolution=8,
                             per_level_scale=2.0)
@@ -140,6 +143,20 @@ def test_file_extension_does_not_matter(tmp_path):
     assert isinstance(load_field(path), NgpField)
     raw = save(make_tree(), tmp_path / "other.dat", compress=False)
     assert isinstance(load_field(raw), NgpField)
+
+
+def test_adapter_sniffs_snapshots_by_content(tmp_path):
+    sniff = InstantNGPAdapter().sniff
+    assert sniff(save(make_tree(), tmp_path / "a.bin"))
+    assert sniff(save(make_tree(), tmp_path / "b.dat", compress=False))
+    zlib_path = tmp_path / "c.msgpack"
+    zlib_path.write_bytes(zlib.compress(msgpack.packb(make_tree(), use_bin_type=True)))
+    assert sniff(zlib_path)
+    for what, data in _bad_files(tmp_path).items():
+        if what in ("random bytes", "empty", "3dgrut"):
+            (tmp_path / "x.ingp").write_bytes(data)
+            assert not sniff(tmp_path / "x.ingp"), what
+    assert not sniff(tmp_path / "missing.ingp") and not sniff(tmp_path)
 
 
 # ------------------------------------------------------------------------------------------- forward model

@@ -1,5 +1,5 @@
 """SDF -> opacity against 50-digit references: NeuS's discrete α (render.compositing.alpha_from_sdf) and
-VolSDF's Laplace density (scenes.analytic.laplace_density), for sharpness 1 … 1e6 and SDF values deep inside,
+VolSDF's Laplace density (fields.wrappers.laplace_density), for sharpness 1 … 1e6 and SDF values deep inside,
 far outside (±1e3) and near the surface.
 
 Bounds (float32 inputs; the reference is evaluated at exactly those float32 values):
@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 import torch
 
+from neuras_distill.fields.wrappers import laplace_density
 from neuras_distill.render.compositing import alpha_from_sdf
-from neuras_distill.scenes.analytic import laplace_density
 
 mpmath.mp.dps = 50
 

@@ -21,10 +21,10 @@ import torch.nn.functional as F
 
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.base import check_field
+from neuras_distill.fields.wrappers import SDFToDensityField
 from neuras_distill.pipeline.decisions import background_is_constant
 from neuras_distill.render.cameras import Cameras, look_at
 from neuras_distill.render.volume import VolumeRenderer
-from neuras_distill.scenes.analytic import SDFToDensityField
 from neuras_distill.scenes.street import AABB, LANE_Y, StreetField, make_street
 from neuras_distill.scenes.synthetic import SCENE_BETA, SCENES, make_scene
 

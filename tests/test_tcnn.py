@@ -1,7 +1,7 @@
 """The pure-PyTorch tiny-cuda-nn pieces (neuras_distill.components.tcnn) against slow, literal references.
 
 The hash-grid reference below is a plain-Python loop over points, levels and corners that follows
-checkpoint-formats.md §1.5 word by word (python ints, ``& 0xFFFFFFFF``, float32 via numpy / libm); the MLP
+docs/formats.md §1.5 word by word (python ints, ``& 0xFFFFFFFF``, float32 via numpy / libm); the MLP
 reference builds the padded matrices by hand; SH is checked term by term and for orthonormality.
 """
 

@@ -1,6 +1,6 @@
 """Pure-PyTorch re-implementation of the tiny-cuda-nn pieces that Instant-NGP and hash-grid NeuS use.
 
-This module owns (checkpoint-formats.md §1.4-§1.6; TCNN encodings/grid.h, common_device.h,
+This module owns (docs/formats.md §1.4-§1.6; TCNN encodings/grid.h, common_device.h,
 fully_fused_mlp.cu):
 
 * :class:`HashGridConfig`: the multiresolution hash-grid hyper-parameters and the per-level quantities TCNN
@@ -561,7 +561,7 @@ class TcnnMLP(torch.nn.Module):
 def sh_encode_deg4(d: torch.Tensor) -> torch.Tensor:
     """TCNN SphericalHarmonics, degree 4: d (N, 3) unit directions -> (N, 16), TCNN constants and signs.
 
-    §1.6 of checkpoint-formats.md; nerfstudio's pure-torch SH uses other signs.
+    docs/formats.md §1.6; nerfstudio's pure-torch SH uses other signs.
 
     Evaluated on ``d`` itself (TCNN receives ``(d + 1) / 2`` and maps it back). Not normalised here. Keeps the
     floating dtype of ``d``.

@@ -1,3 +1,6 @@
-"""fields: the Field contract (:mod:`.base`), checkpoint helpers (:mod:`.checkpoint`), and for now the
-Instant-NGP and NeuS readers. Synthetic scenes live in :mod:`neuras_distill.scenes`, network parts shared by
-formats in :mod:`neuras_distill.components`."""
+"""fields: what every field shares, whatever its format: the Field contract, :func:`~.base.check_field` and
+chunked evaluation (:mod:`.base`), and safe reading of torch checkpoints (:mod:`.checkpoint`).
+
+Format readers live in their adapter packages (``adapters/``, installed as ``neuras_distill_adapters``:
+``instant_ngp``, ``neus``), synthetic scenes in :mod:`neuras_distill.scenes`, network parts shared by formats
+in :mod:`neuras_distill.components`."""

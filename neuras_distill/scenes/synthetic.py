@@ -36,7 +36,8 @@ import torch
 import torch.nn.functional as F
 
 from ..errors import BadInputError
-from .analytic import SDFToDensityField, SphereSDF, TorusSDF, orbit_framing
+from ..fields.wrappers import SDFToDensityField
+from .analytic import SphereSDF, TorusSDF, orbit_framing
 from .gradient_ball import make_gradient_ball
 from .street import STREET_BETA, make_street
 

@@ -1,4 +1,5 @@
-"""NeuS / IDR camera files (``cameras_sphere.npz``): projection matrices to :class:`Cameras`, and the scale matrix.
+"""NeuS / IDR camera files (``cameras_sphere.npz``, docs/formats.md §2.3): projection matrices to
+:class:`Cameras`, and the scale matrix.
 
 This module owns:
 
@@ -28,8 +29,8 @@ import numpy as np
 import scipy.linalg
 import torch
 
-from ..errors import BadInputError, require
-from ..render.cameras import Cameras
+from neuras_distill.errors import BadInputError, require
+from neuras_distill.render.cameras import Cameras
 
 _WORLD_RE = re.compile(r"^world_mat_(\d+)$")
 

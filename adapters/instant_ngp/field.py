@@ -1,7 +1,7 @@
 """An Instant-NGP NeRF snapshot as a Field, evaluated in plain PyTorch (no tiny-cuda-nn, no CUDA needed).
 
 This module owns :class:`NgpField`: the forward model of instant-ngp's ``NerfNetwork``
-(checkpoint-formats.md §1.4–1.7) in the user's world frame (§1.8, :mod:`.ngp_frames`), the snapshot's
+(docs/formats.md §1.4–1.7) in the user's world frame (§1.8, :mod:`.frames`), the snapshot's
 occupancy grid (§1.9) and the choice of the foreground box.
 
 Forward model for world points x (N, 3) and unit directions of travel d (N, 3):
@@ -21,13 +21,14 @@ import math
 import numpy as np
 import torch
 
-from ..components.tcnn import HashGridEncoding, TcnnMLP, sh_encode_deg4
-from ..errors import require
-from ..render.cameras import Cameras
-from ..render.occupancy import OccupancyGrid
-from .base import evaluate_chunked
-from .ngp_frames import NgpFrame
-from .ngp_snapshot import GRID_SIZE, NgpSnapshot
+from neuras_distill.components.tcnn import HashGridEncoding, TcnnMLP, sh_encode_deg4
+from neuras_distill.errors import require
+from neuras_distill.fields.base import evaluate_chunked
+from neuras_distill.render.cameras import Cameras
+from neuras_distill.render.occupancy import OccupancyGrid
+
+from .frames import NgpFrame
+from .snapshot import GRID_SIZE, NgpSnapshot
 
 #: instant-ngp's mesh export threshold on the raw density output h0 = ln σ_ngp (§1.10).
 NGP_MESH_LOG_DENSITY = 2.5
@@ -44,7 +45,7 @@ class NgpField(torch.nn.Module):
     """A trained instant-ngp NeRF as a neuras-distill density field (world frame of the user's data).
 
     Args:
-        snapshot: a validated :class:`~.ngp_snapshot.NgpSnapshot`.
+        snapshot: a validated :class:`~.snapshot.NgpSnapshot`.
         foreground_box: (2, 3) world box overriding the automatic foreground box.
         latent_view: which training image's per-image latent code to render with (instant-ngp renders with
             view 0), or ``"mean"``.

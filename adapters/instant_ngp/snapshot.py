@@ -1,10 +1,11 @@
 """Instant-NGP snapshot files (``.ingp`` = gzip(msgpack), ``.msgpack`` = raw msgpack): read, validate, write.
 
-This module owns the container and the key tree (checkpoint-formats.md §1.1–1.4, §1.9) and is the only
-importer of ``msgpack``. :func:`read_snapshot` turns a file into an :class:`NgpSnapshot` of validated plain
-numpy arrays and numbers, or raises one :class:`~neuras_distill.errors.BadInputError` naming the problem.
-Every size is checked against the configuration *before* anything is allocated from it, and decompression
-is capped at a multiple of the file's size, so memory stays bounded by the file.
+This module owns the container and the key tree (docs/formats.md §1.1–1.4, §1.9) and is the only
+importer of ``msgpack``. :func:`sniff_snapshot` recognises a snapshot from its first bytes (the adapter's
+``sniff``); :func:`read_snapshot` turns a file into an :class:`NgpSnapshot` of validated plain numpy arrays
+and numbers, or raises one :class:`~neuras_distill.errors.BadInputError` naming the problem. Every size is
+checked against the configuration *before* anything is allocated from it, and decompression is capped at a
+multiple of the file's size, so memory stays bounded by the file.
 
 :func:`write_snapshot` writes the same layout (used by the test helpers and the fixture trainer).
 
@@ -24,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..components.tcnn import HashGridConfig, mlp_param_count, next_multiple
-from ..errors import BadInputError, require
+from neuras_distill.components.tcnn import HashGridConfig, mlp_param_count, next_multiple
+from neuras_distill.errors import BadInputError, require
 
 #: Decompressed size allowed per byte of file (a real snapshot inflates about 1-20x; a zip bomb far more).
 MAX_INFLATION = 256
@@ -33,6 +34,8 @@ GRID_SIZE = 128
 MODES = ("nerf", "sdf", "image", "volume")
 MLP_TYPES = ("FullyFusedMLP", "CutlassMLP", "MLP")
 SH_DEGREE = 4
+#: Bytes read (and at most inflated) to recognise a snapshot.
+SNIFF_BYTES = 1 << 16
 
 
 @dataclass
@@ -108,6 +111,31 @@ def sniff_snapshot_kind(head: bytes) -> str | None:
     if head[:1] and (0x80 <= head[0] <= 0x8F or head[0] in (0xDE, 0xDF)):
         return "msgpack"
     return None
+
+
+def sniff_snapshot(path) -> bool:
+    """Whether ``path`` holds an Instant-NGP NeRF snapshot, from at most its first :data:`SNIFF_BYTES` bytes.
+
+    The container is told by its magic bytes (:func:`sniff_snapshot_kind`); a compressed head is inflated up
+    to :data:`SNIFF_BYTES` and must start with a msgpack map. The root map's ``snapshot`` key must appear in
+    that head and 3DGRUT's Gaussian-particle ``.ingp`` files (``nre_data``) are not claimed. Never raises
+    for unreadable or foreign files (False)."""
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(SNIFF_BYTES)
+    except OSError:
+        return False
+    kind = sniff_snapshot_kind(raw[:4])
+    if kind is None:
+        return False
+    if kind != "msgpack":
+        try:
+            raw = zlib.decompressobj(16 + 15 if kind == "gzip" else 15).decompress(raw, SNIFF_BYTES)
+        except zlib.error:
+            return False
+        if not raw or not (0x80 <= raw[0] <= 0x8F or raw[0] in (0xDE, 0xDF)):
+            return False
+    return b"snapshot" in raw and b"nre_data" not in raw
 
 
 def _inflate(data: bytes, wbits: int, limit: int, path: Path) -> bytes:

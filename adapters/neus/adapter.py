@@ -1,8 +1,9 @@
-"""Adapter for NeuS-family SDF checkpoints: Totoro97/NeuS ``ckpt_*.pth`` and instant-nsr-pl ``*.ckpt``.
+"""The NeuS-family adapter: Totoro97/NeuS ``ckpt_*.pth`` and instant-nsr-pl ``*.ckpt`` SDF checkpoints.
 
 Recognised by content, not extension: a zip-format torch checkpoint whose pickle (``data.pkl``, read without
-loading any tensor) mentions ``sdf_network_fine`` (NeuS) or ``geometry.encoding.encoding.params`` /
-``variance.variance`` (instant-nsr-pl). Loading is :func:`neuras_distill.fields.neus.load_neus_checkpoint`.
+loading any tensor, by :func:`neuras_distill.fields.checkpoint.inspect_torch_zip`) mentions
+``sdf_network_fine`` (NeuS) or ``geometry.encoding.encoding.params`` / ``variance.variance`` (instant-nsr-pl).
+Loading is :func:`.loader.load_neus_checkpoint`.
 """
 
 from __future__ import annotations
@@ -30,8 +31,8 @@ class NeuSAdapter:
         """Options: ``cameras`` (cameras_sphere.npz or transforms.json path), ``config`` (instant-nsr-pl
         parsed.yaml/JSON path or dict), ``density`` ("neus" | "laplace"), ``width``/``height`` (image size
         for cameras_sphere.npz), and ``beta``, ``scale_mat``, ``background_color``, ``bound``, ``sdf_scale``,
-        ``chunk`` (see :func:`~neuras_distill.fields.neus.load_neus_checkpoint`)."""
-        from neuras_distill.fields.neus import load_neus_checkpoint
+        ``chunk`` (see :func:`~.loader.load_neus_checkpoint`)."""
+        from .loader import load_neus_checkpoint
 
         unknown = sorted(set(options) - set(EXTRA_OPTIONS))
         if unknown:

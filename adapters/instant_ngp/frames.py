@@ -1,6 +1,6 @@
 """Instant-NGP's coordinate frames and the maps between them and the user's transforms.json frame.
 
-This module owns :class:`NgpFrame`. Three frames (checkpoint-formats.md §1.8):
+This module owns :class:`NgpFrame`. Three frames (docs/formats.md §1.8):
 
 * **world** ("nerf" space): the frame of the user's ``transforms.json``; OpenGL camera axes (x right, y up,
   z backward). Everything neuras-distill hands out (field, cameras, meshes) is in this frame.
