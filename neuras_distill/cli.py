@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 DEFAULT_SCENE = "bunny"
 
@@ -231,9 +232,7 @@ def run_inputs(args) -> tuple:
     return RUN_COMMANDS[args.command](args)
 
 
-def _default_out(args) -> "Path":
-    from pathlib import Path
-
+def _default_out(args) -> Path:
     if args.command in ("demo", "from-synthetic"):
         name = DEFAULT_SCENE if args.command == "demo" else args.name
         return Path(f"runs/{name}" + ("" if args.kind in (None, "sdf") else f"-{args.kind}"))
