@@ -23,8 +23,8 @@ HOMES = {
     "glfw": "neuras_distill/playback/window.py",
     "flip_evaluator": "neuras_distill/flip_metric.py",
     "matplotlib": "neuras_distill/pipeline/report.py",
-    "msgpack": "neuras_distill/fields/ngp_snapshot.py",
-    "yaml": "neuras_distill/fields/neus.py",
+    "msgpack": "adapters/instant_ngp/snapshot.py",
+    "yaml": "adapters/neus/nsr_config.py",
 }
 
 
