@@ -3,8 +3,20 @@ the previous count back, also when the block raises; the autouse guard catches a
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import pytest
 import torch
+
+
+def _tests_conftest():
+    """tests/conftest.py loaded by its path: ``from conftest import`` finds whichever conftest module pytest
+    imported last under that name (tests/stability/conftest.py when the whole suite runs)."""
+    spec = importlib.util.spec_from_file_location("tests_conftest", Path(__file__).with_name("conftest.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def test_two_torch_threads_sets_two(two_torch_threads):
@@ -26,7 +38,7 @@ def test_torch_threads_restores_the_count_after_the_block_even_when_it_raises(to
 
 def test_the_guard_fails_a_test_that_leaves_the_count_changed():
     """The autouse guard's check, around a block that leaks a changed count: it fails and puts it back."""
-    from conftest import _thread_count_kept
+    _thread_count_kept = _tests_conftest()._thread_count_kept
 
     before = torch.get_num_threads()
     with pytest.raises(pytest.fail.Exception, match=f"left torch's thread count at {before + 1}"):
