@@ -3,7 +3,7 @@
 The gradient ball's colour is constant along each radius, so an ideal texture on a sphere of radius r shows,
 at each pixel, the field's colour where the pixel's ray meets that sphere. Against the volume-rendered
 field, the PSNR over interior pixels (``metrics.interior_mask``) says how much parallax through the soft
-fringe costs a mesh at that radius: the ceiling of any opaque core there (``docs/architecture.md``, "Where
+fringe costs a mesh at that radius: the ceiling of any opaque core there (``docs/decisions.md``, "Where
 the colour comes from"). The surface level's mesh sits at r = 0.5 (the silhouette), the colour level's at
 about 0.478.
 

@@ -5,8 +5,9 @@ colour attachment (what a display shows) with a 24-bit depth buffer, depth test 
 manifest says ``cull_back_faces``, cleared to ``bundle.background_color``. A two-layer mesh
 (``mesh.core_faces``, manifest ``core_faces``) is drawn as ``rasterize.mesh_layers`` says: core then shell, one
 draw call each with ``u_layer`` 0 / 1, so the core wins every pixel it covers (no blending: opaque rgb).
-Texture binding follows docs/architecture.md: every entry of ``bundle.textures`` (uniform name -> array) becomes a NEAREST, mipmap-free texture bound to the sampler of that
-name; uint16 arrays -> R16UI..RGBA16UI (``usampler2D``), float32 arrays -> R32F..RGBA32F (``sampler2D``),
+Texture binding follows docs/architecture.md ("Shader interface and texture binding"): every entry of
+``bundle.textures`` (uniform name -> array) becomes a NEAREST, mipmap-free texture bound to the sampler of
+that name; uint16 arrays -> R16UI..RGBA16UI (``usampler2D``), float32 arrays -> R32F..RGBA32F (``sampler2D``),
 row 0 of the array = v = 0 (uploaded as is). Uniforms the compiled program optimised out are skipped.
 
 Cameras are given in world coordinates; the renderer moves them into the bundle's frame (``bundle.origin``

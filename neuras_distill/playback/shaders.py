@@ -1,6 +1,6 @@
 """GLSL sources shared by the G-buffer rasterizer and bundle playback (this module owns the vertex stage).
 
-Shader interface (see docs/architecture.md):
+Shader interface (see docs/architecture.md, "Shader interface and texture binding"):
   vertex:   in vec3 in_position (world), in vec2 in_uv, in vec3 in_normal (``MeshData.vertex_normals``);
             uniform mat4 u_mvp (world -> clip); uniform float u_layer (the mesh layer being drawn, see below);
             out vec2 v_uv, out vec3 v_world (world position), out vec3 v_normal (perspective-correct interpolated).
