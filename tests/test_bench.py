@@ -120,3 +120,30 @@ def test_bench_distils_variants_from_the_stored_stages_and_writes_the_front(smal
     assert mlp["config"]["texture"]["hidden"] == 8 and mlp["train_summary"]["steps"] == 200
     html = (small_run / "report.html").read_text()
     assert html.count('<section id="bench">') == 1 and "bench/bench.png" in html
+
+    # a killed bench: its finished variant (marker written) is reused, an unfinished one and stray files are not
+    partial = small_run / ".bench.partial"
+    shutil.copytree(folder / "variants" / "mlp-8", partial / "variants" / "mlp-8")
+    (partial / "variants" / "faces-half").mkdir()                      # killed while distilling: no marker
+    (partial / "bench.json").write_text("{half written")
+    before = (partial / "variants" / "mlp-8" / "report.json").read_bytes()
+    assert main(["bench", str(small_run), "--resolutions", "96x54", "--variants", "mlp-8", "--quiet"]) == 0
+    again = json.loads((folder / "bench.json").read_text())
+    assert again["reused_variants"] == ["mlp-8"] and not partial.exists()
+    assert (folder / "variants" / "mlp-8" / "report.json").read_bytes() == before
+    assert {p.name for p in (folder / "variants").iterdir()} == {"mlp-8"}
+    assert [p["label"] for p in again["points"] if p["kind"] == "bundle"] == ["default", "mlp-8"]
+
+
+def test_a_variant_is_reused_only_with_the_settings_it_was_distilled_with(tmp_path):
+    from neuras_distill.bench.run import VARIANT_MARKER, _finished_variant
+
+    marker = {"source": {"command": "x"}, "config": {"texture": {"hidden": 8}}, "version": "1"}
+    (tmp_path / "report.json").write_text('{"psnr": 30}')
+    assert _finished_variant(tmp_path, marker) is None                 # no marker: killed before it finished
+    (tmp_path / VARIANT_MARKER).write_text(json.dumps(marker))
+    assert _finished_variant(tmp_path, marker) == {"psnr": 30}
+    assert _finished_variant(tmp_path, {**marker, "config": {"texture": {"hidden": 16}}}) is None
+    assert _finished_variant(tmp_path, {**marker, "version": "2"}) is None
+    (tmp_path / VARIANT_MARKER).write_text("{torn")
+    assert _finished_variant(tmp_path, marker) is None

@@ -5,7 +5,10 @@ its field from ``report["source"]`` (the command line and its folder), distil ea
 ``bench/variants/<name>/`` from the run's stored stages (``distill(reuse_from=[<run>/work])``), then measure
 every point at each resolution (:mod:`.measure`) and write ``bench.json``, ``bench.md``, ``bench.png`` and a
 section of the run's ``report.html``. Everything is written in ``<run>/.bench.partial/`` and moved to
-``<run>/bench/`` when it is complete; a failed bench leaves the run as it was.
+``<run>/bench/`` when it is complete; a failed bench leaves the run as it was. A bench that was killed is
+resumed by the same command: each variant finished in ``.bench.partial/variants/`` carries a marker with the
+settings it was distilled with (:data:`VARIANT_MARKER`) and is reused when they match; the measurements are
+taken again (they must come from one sitting).
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ DEFAULT_TARGET_MS = 1000.0 / 60.0
 #: Parts of each variant's run folder the bench removes (its side-by-side images and web player); the bundle,
 #: report.json/md and the stage timings stay in ``bench/variants/NAME/``.
 VARIANT_FOLDERS_DROPPED = ("views", "web")
+#: File in each finished variant's folder naming what it was distilled from (run source, settings, version).
+VARIANT_MARKER = "bench_variant.json"
 
 
 def parse_resolutions(text: str) -> list[tuple[int, int]]:
@@ -117,6 +122,34 @@ def _merged(base: dict, changes: dict) -> dict:
     return out
 
 
+def _clear_all_but_variants(tmp: Path) -> None:
+    """Empty a killed bench's ``.bench.partial/`` except ``variants/`` (whose finished members are reused)."""
+    if not tmp.is_dir():
+        return
+    for entry in tmp.iterdir():
+        if entry.name == "variants" and entry.is_dir():
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
+
+
+def _finished_variant(folder: Path, marker: dict) -> dict | None:
+    """The report of a variant a killed bench finished with exactly ``marker``'s settings, else None.
+
+    The marker is written last, after the variant's run folder appeared (atomically) and its heavy folders were
+    dropped, so its presence means the variant is complete.
+    """
+    try:
+        stored = json.loads((folder / VARIANT_MARKER).read_text())
+        if stored != json.loads(json.dumps(marker, sort_keys=True)):
+            return None
+        return json.loads((folder / "report.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def _machine(gl: dict | None) -> dict:
     import torch
 
@@ -166,27 +199,41 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
     reference_steps = 2 * max(steps)
 
     tmp, out = run / ".bench.partial", run / "bench"
-    shutil.rmtree(tmp, ignore_errors=True)
-    (tmp / "variants").mkdir(parents=True)
+    _clear_all_but_variants(tmp)
+    (tmp / "variants").mkdir(parents=True, exist_ok=True)
     from tqdm import tqdm
 
     per_res = len(test) * (len(steps) + 1) + 2 + len(chosen)
     bar = tqdm(total=len(chosen) + len(res) * per_res, desc="bench", disable=not progress, leave=False)
     try:
-        bundles, skipped = {}, {}
+        bundles, skipped, reused = {}, {}, []
         for v in chosen:
             bar.set_postfix_str(f"distilling {v.name}")
-            cfg = load_config(overrides=_merged(report["config"], variant_overrides(v, facts)))
+            settings = _merged(report["config"], variant_overrides(v, facts))
+            marker = {"source": report.get("source"), "config": settings, "version": report["version"]}
+            folder = tmp / "variants" / v.name
             try:
-                result = distill(field, cameras, cfg, tmp / "variants" / v.name, progress=False, log=lambda m: None,
-                                 keep_work=False, reuse_from=[run / "work"], source=report.get("source"))
-                bundles[v.name] = (v, result.bundle, result.report)
-                for heavy in VARIANT_FOLDERS_DROPPED:      # 12 of a variant's 13 MB on the demo
-                    shutil.rmtree(tmp / "variants" / v.name / heavy, ignore_errors=True)
+                stored = _finished_variant(folder, marker)
+                if stored is not None:
+                    bundles[v.name] = (v, load_bundle(folder / "bundle"), stored)
+                    reused.append(v.name)
+                    log(f"bench: resumed: variant {v.name} reused from the killed bench's .bench.partial/")
+                else:
+                    shutil.rmtree(folder, ignore_errors=True)
+                    result = distill(field, cameras, load_config(overrides=settings), folder, progress=False,
+                                     log=lambda m: None, keep_work=False, reuse_from=[run / "work"],
+                                     source=report.get("source"))
+                    bundles[v.name] = (v, result.bundle, result.report)
+                    for heavy in VARIANT_FOLDERS_DROPPED:      # 12 of a variant's 13 MB on the demo
+                        shutil.rmtree(folder / heavy, ignore_errors=True)
+                    (folder / VARIANT_MARKER).write_text(json.dumps(marker, sort_keys=True))
             except BadInputError as exc:
                 skipped[v.name] = str(exc)
                 log(f"bench: variant {v.name} skipped: {exc}")
             bar.update(1)
+        for leftover in (tmp / "variants").iterdir():     # a killed bench's unfinished or unchosen variants
+            if leftover.name not in bundles:
+                shutil.rmtree(leftover, ignore_errors=True)
         default = load_bundle(run / "bundle")
         points, fronts = [], {}
         for w, h in res:
@@ -223,6 +270,7 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
     pick = recommend([p for p in points if f"{p['resolution'][0]}x{p['resolution'][1]}" == largest], target)
     result = {"run": str(run.resolve()), "points": points, "pareto": fronts[largest], "pareto_by_resolution": fronts,
               "target_ms": target, "recommended": pick["label"] if pick else None, "skipped": skipped,
+              "reused_variants": reused,
               "variants": {v.name: {"description": v.description, "changes": variant_overrides(v, facts)}
                            for v in chosen},
               "machine": _machine(gl_info()), "seconds": time.perf_counter() - t_start}
