@@ -46,6 +46,12 @@ def test_every_variant_pins_the_runs_training_and_changes_one_setting():
     assert changes["faces-quarter"]["geometry"] == {"face_budget": 10000}
     assert changes["mlp-two-hidden"]["texture"]["num_layers"] == 3
     assert changes["no-vq"]["texture"]["quantize"] is False
+    # a variant that would be the run's own bundle is named as such (and skipped by the bench)
+    same = {v.name: v.same_as_run(facts) for v in pick_variants(None)}
+    assert not any(same.values())
+    without_view = RunFacts(side=256, steps=3000, face_budget=40000, hidden=16, num_layers=2, view_input=False)
+    same = {v.name: v.same_as_run(without_view) for v in pick_variants(None)}
+    assert [n for n, why in same.items() if why] == ["no-view"] and "already has no view input" in same["no-view"]
     with pytest.raises(BadInputError, match="unknown bench variant 'mlp-64'; available: atlas-half"):
         pick_variants(["mlp-8", "mlp-64"])
 
@@ -147,3 +153,26 @@ def test_a_variant_is_reused_only_with_the_settings_it_was_distilled_with(tmp_pa
     assert _finished_variant(tmp_path, {**marker, "version": "2"}) is None
     (tmp_path / VARIANT_MARKER).write_text("{torn")
     assert _finished_variant(tmp_path, marker) is None
+
+
+def test_the_bundle_labels_of_the_plot_never_overlap(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from neuras_distill.pipeline.report import _label_column, plot_tradeoff
+
+    close = [(f"v{i}", 30.0 + 0.01 * i, 29.0 + 0.001 * ((7 * i) % 5)) for i in range(6)]   # within 0.1 ms, 5 mdB
+    fig, ax = plt.subplots()
+    _label_column(ax, close)
+    texts = {t.get_text(): t.xyann[1] for t in ax.texts}
+    plt.close(fig)
+    slots = sorted(texts.values())
+    assert len(texts) == 6 and min(b - a for a, b in zip(slots, slots[1:])) > 0.01
+    by_psnr = [label for label, _, _ in sorted(close, key=lambda t: t[2])]
+    assert sorted(texts, key=texts.get) == by_psnr                  # labels stacked in the points' PSNR order
+    points = [{**_pt(label, ms, psnr), "resolution": [64, 36], "default": label == "v0", "reference_steps": 256}
+              for label, ms, psnr in close]
+    plot_tradeoff(points, {"64x36": ["v0"]}, tmp_path / "bench.png")
+    assert (tmp_path / "bench.png").stat().st_size > 10_000

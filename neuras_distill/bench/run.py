@@ -112,7 +112,8 @@ def _facts(report: dict) -> RunFacts:
     tex = report["config"]["texture"]
     return RunFacts(side=int(report["texture_resolution"][0]), steps=int(report["train_summary"]["steps"]),
                     face_budget=int(report["config"]["geometry"]["face_budget"]), hidden=int(tex["hidden"]),
-                    num_layers=int(tex["num_layers"]))
+                    num_layers=int(tex["num_layers"]),
+                    view_input=bool((report.get("view_dependence") or {}).get("used", True)))
 
 
 def _merged(base: dict, changes: dict) -> dict:
@@ -209,6 +210,10 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
         bundles, skipped, reused = {}, {}, []
         for v in chosen:
             bar.set_postfix_str(f"distilling {v.name}")
+            if (same := v.same_as_run(facts)) is not None:
+                skipped[v.name] = same
+                bar.update(1)
+                continue
             settings = _merged(report["config"], variant_overrides(v, facts))
             marker = {"source": report.get("source"), "config": settings, "version": report["version"]}
             folder = tmp / "variants" / v.name

@@ -18,22 +18,26 @@ from ..errors import BadInputError
 
 @dataclass(frozen=True)
 class RunFacts:
-    """What the variants are relative to: the run's atlas side, training steps, face budget and MLP."""
+    """What the variants are relative to: the run's atlas side, training steps, face budget and MLP, and
+    whether its shader takes the view direction."""
 
     side: int
     steps: int
     face_budget: int
     hidden: int
     num_layers: int
+    view_input: bool = True
 
 
 @dataclass(frozen=True)
 class Variant:
-    """A named change: ``changes(facts)`` -> nested config overrides (``{"texture": {"hidden": 8}}``)."""
+    """A named change: ``changes(facts)`` -> nested config overrides (``{"texture": {"hidden": 8}}``);
+    ``same_as_run(facts)`` -> why the variant would be the run's own bundle (it is then skipped), or None."""
 
     name: str
     description: str
     changes: Callable[[RunFacts], dict]
+    same_as_run: Callable[[RunFacts], str | None] = lambda f: None
 
 
 VARIANTS = (
@@ -43,7 +47,9 @@ VARIANTS = (
     Variant("mlp-32", "MLP hidden width 32", lambda f: {"texture": {"hidden": 32}}),
     Variant("mlp-two-hidden", "MLP with two hidden layers instead of one",
             lambda f: {"texture": {"num_layers": f.num_layers + 1}}),
-    Variant("no-view", "no view-direction input", lambda f: {"texture": {"view_dependence": "off"}}),
+    Variant("no-view", "no view-direction input", lambda f: {"texture": {"view_dependence": "off"}},
+            lambda f: None if f.view_input else "the run's shader already has no view input (its field's colour "
+            "barely changes with the view): this variant would be the default bundle"),
     Variant("no-vq", "no vector quantization (every distinct texel feature stored)",
             lambda f: {"texture": {"quantize": False}}),
     Variant("faces-quarter", "face budget x1/4", lambda f: {"geometry": {"face_budget": max(4, f.face_budget // 4)}}),
