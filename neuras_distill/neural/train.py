@@ -98,7 +98,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         lr_final_ratio: float = 0.1,
         time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
         seed: int = _TRAIN.seed, num_threads: int | None = None, skybox=None, origins=None,
-        checkpoint=None) -> TrainLog:
+        sky_pixels=None, checkpoint=None) -> TrainLog:
     """Train ``model`` on teacher images.
 
     Args:
@@ -115,6 +115,9 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             On a busy shared CPU, 1 thread avoids OpenMP oversubscription (measured 108 vs 1.8 steps/s).
         skybox: optional :class:`SkyboxModel` trained jointly on the pixels the mesh does not cover.
         origins: (N, 3) float32 camera centres relative to ``skybox.layers.center`` (required with skybox).
+        sky_pixels: optional (N, H, W) bool, the uncovered pixels the skybox learns from (default: all of them);
+            an uncovered pixel outside it is left out of the loss (``pipeline.decisions.near_miss_pixels``: the
+            field shows a surface there that the mesh missed, which the skybox must not smear over the sky).
         checkpoint: optional :class:`neural.train_checkpoint.TrainCheckpoint`: the loop starts from its stored
             state when it has one (``TrainLog.resumed_from_step``) and saves its state when it is due.
     Returns:
@@ -139,6 +142,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         if origins_t.shape[0] != lead[0]:
             raise BadInputError(f"fit: origins has {origins_t.shape[0]} rows for {lead[0]} views")
         covered = torch.arange(cov_f.numel())            # patches anywhere: the sky is trained too
+    sky_f = None if sky_pixels is None or skybox is None else \
+        _as_tensor(sky_pixels, torch.bool, "sky_pixels", (), lead).reshape(-1)
     uv_f, dirs_f, tgt_f = uv_t.reshape(-1, 2), dirs_t.reshape(-1, dirs_t.shape[-1]), tgt_t.reshape(-1, 3)
 
     p = int(max(1, min(patch, h, w)))
@@ -214,12 +219,21 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             tgt = tgt_f[pix]
             rgb, aux = model(uv_f[pix[sel]], dirs_f[pix[sel]])
             vq_loss = aux["vq_loss"]
-            if skybox is not None:                    # every pixel counts: mesh where covered, sky elsewhere
+            if skybox is not None and sky_f is None:  # every pixel counts: mesh where covered, sky elsewhere
                 sky = torch.nonzero(~m).flatten()
                 sky_rgb, sky_aux = skybox(origins_t[view].repeat_interleave(p * p, dim=0)[sky], dirs_f[pix[sky], :3])
                 rgb = torch.empty(pix.numel(), 3, dtype=rgb.dtype).index_put((sel,), rgb).index_put((sky,), sky_rgb)
                 sel = torch.arange(pix.numel())
                 m = torch.ones_like(m)
+                vq_loss = vq_loss + sky_aux["vq_loss"]
+            elif skybox is not None:                  # mesh where covered, sky where allowed, the rest left out
+                learn = ~m & sky_f[pix]
+                sky = torch.nonzero(learn).flatten()
+                sky_rgb, sky_aux = skybox(origins_t[view].repeat_interleave(p * p, dim=0)[sky], dirs_f[pix[sky], :3])
+                full = torch.zeros(pix.numel(), 3, dtype=rgb.dtype).index_put((sel,), rgb).index_put((sky,), sky_rgb)
+                m = m | learn
+                sel = torch.nonzero(m).flatten()
+                rgb = full[sel]
                 vq_loss = vq_loss + sky_aux["vq_loss"]
             l2 = torch.mean((rgb - tgt[sel]) ** 2)
             loss = l2 + vq_weight * vq_loss

@@ -84,6 +84,23 @@ def skyboxes(mode: str, coverage: np.ndarray, background: Background, record: De
     return True, reason
 
 
+def sky_training_pixels(surface_depths: np.ndarray, coverage: np.ndarray, train, aabb,
+                        record: Decisions) -> np.ndarray:
+    """(N, H, W) bool: the uncovered training pixels the skyboxes learn from: all but the near misses
+    (``decisions.near_miss_pixels``: the field shows a surface inside its foreground box that the mesh missed).
+    ``train``: the training ``Cameras``. Leaving them out is recorded with their share of the pixels."""
+    near = decisions.near_miss_pixels(surface_depths, coverage, train.rays, aabb)
+    uncovered = ~coverage
+    share = float(near.sum() / max(int(uncovered.sum()), 1))
+    if near.any():
+        record.leave_out("skybox training on near misses",
+                         f"{100 * share:.1f}% of the pixels the mesh misses show a surface inside the foreground "
+                         "box (parts thinner than the mesh resolves); trained into the skyboxes they would paint "
+                         "it over the sky seen from other views", near_miss_fraction=share,
+                         near_miss_pixels=int(near.sum()))
+    return uncovered & ~near
+
+
 def silhouette_blend(mode: str, fringe_pixels: float, train, test, record: Decisions) -> bool:
     """Whether the bundle plays with the soft-silhouette pass: when the field's fringe, ``fringe_pixels`` wide in
     the training views, is at least ``decisions.SILHOUETTE_BLEND_MIN_PIXELS`` wide at the held-out (playing)

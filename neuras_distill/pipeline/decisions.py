@@ -44,6 +44,40 @@ def measure_view_dependence(field: Field, mesh: MeshData, *, num_points: int = 2
     return float(rgb.std(dim=1).mean())
 
 
+#: Margin around the field's foreground box, as a fraction of its diagonal, inside which a training pixel's
+#: visible surface counts as foreground (``near_miss_pixels``).
+NEAR_MISS_BOX_MARGIN = 0.01
+
+
+def near_miss_pixels(surface_depths: np.ndarray, coverage: np.ndarray, rays, aabb,
+                     margin: float = NEAR_MISS_BOX_MARGIN) -> np.ndarray:
+    """(N, H, W) bool: training pixels the mesh misses although the field shows an opaque surface inside its
+    foreground box there (a lamp arm thinner than a voxel, the fringe of a tree). Trained into the skyboxes, such
+    pixels paint foreground colours into the sky, where every other view sees them as smudges; they are left out
+    of the skyboxes' training instead.
+
+    Args:
+        surface_depths: (N, H, W) float32 ray distances where the field's opacity reaches 0.5 (0: never).
+        coverage: (N, H, W) bool, pixels the mesh covers.
+        rays: callable ``index -> (origins (H, W, 3), unit directions (H, W, 3))`` in the field's world frame.
+        aabb: the field's foreground box, (2, 3) or (6,) min and max corners (world frame).
+        margin: box growth as a fraction of its diagonal.
+    """
+    box = np.asarray(torch.as_tensor(aabb).double().reshape(2, 3).cpu().numpy())
+    grow = margin * float(np.linalg.norm(box[1] - box[0]))
+    lo, hi = box[0] - grow, box[1] + grow
+    out = np.zeros(coverage.shape, dtype=bool)
+    for i in range(coverage.shape[0]):
+        depth = surface_depths[i].astype(np.float64)
+        candidates = ~coverage[i] & (depth > 0)
+        if not candidates.any():
+            continue
+        origins, dirs = (np.asarray(t, dtype=np.float64) for t in rays(i))
+        hit = origins[candidates] + dirs[candidates] * depth[candidates, None]
+        out[i][candidates] = np.all((hit >= lo) & (hit <= hi), axis=1)
+    return out
+
+
 def background_is_constant(field) -> tuple[bool, str]:
     """(True, description) when every ray that misses the foreground sees one constant colour."""
     if getattr(field, "unbounded", False):

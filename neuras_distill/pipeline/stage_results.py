@@ -210,12 +210,14 @@ class TrainingViews:
 class Backdrop:
     """What the bundle shows where the mesh is not: the trained-to-be ``skybox`` (``SkyboxModel`` or None),
     the training cameras' positions relative to its layers (``sky_origins``, (N, 3), None without skyboxes),
-    the ``reason`` of that choice, and the ``clear`` colour ((3,) float32 tensor)."""
+    the ``reason`` of that choice, the ``clear`` colour ((3,) float32 tensor), and ``sky_pixels`` ((N, H, W)
+    bool, the uncovered training pixels the skyboxes learn from; None: all of them)."""
 
     skybox: Any
     sky_origins: np.ndarray | None
     reason: str
     clear: torch.Tensor
+    sky_pixels: np.ndarray | None = None
 
 
 @dataclass

@@ -30,7 +30,8 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
     key = digest("distill", ctx.keys["gbuffer"], ctx.keys["plan"], plan.steps, plan.time_budget_s,
                  settings(cfg.texture), settings(cfg.train, ("checkpoint_every_s",)), settings(cfg.skybox),
                  inputs.use_viewdir, inputs.use_facing, inputs.core_viewdir, skybox is not None,
-                 skybox.layers.to_json() if skybox is not None else None, backdrop.clear)
+                 skybox.layers.to_json() if skybox is not None else None, backdrop.clear,
+                 *(() if backdrop.sky_pixels is None else ("sky pixels", backdrop.sky_pixels)))
     checkpoint = (TrainCheckpoint(ctx.cache.work / "checkpoints" / f"distill-{key}.pt", key,
                                   every_s=cfg.train.checkpoint_every_s, log=ctx.log) if ctx.cache is not None else None)
 
@@ -40,7 +41,8 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
         log = fit(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, lr=tr.lr,
                   batch_patches=tr.batch_patches, patch=tr.patch, ssim_weight=tr.ssim_weight,
                   vq_warmup=tr.vq_warmup, time_budget_s=plan.time_budget_s, progress=ctx.progress, seed=tr.seed,
-                  skybox=skybox, origins=backdrop.sky_origins, checkpoint=checkpoint)
+                  skybox=skybox, origins=backdrop.sky_origins, sky_pixels=backdrop.sky_pixels,
+                  checkpoint=checkpoint)
         if log.resumed_from_step:
             ctx.log(f"distill: continued from the checkpoint at step {log.resumed_from_step}")
         return TrainedModel.of(model, skybox, log.as_dict())

@@ -42,11 +42,13 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
     dirs = view_inputs(np.stack([train.rays(i)[1].numpy() for i in range(len(train))]), gbuffer.face_id,
                        gbuffer.normal, inputs.use_facing, local_mesh.core_faces)
     use_skybox, reason = choices.skyboxes(cfg.skybox.mode, gbuffer.coverage, ctx.background, ctx.decisions)
-    skybox, sky_origins = None, None
+    skybox, sky_origins, sky_pixels = None, None, None
     if use_skybox:
         sb = cfg.skybox
         skybox = SkyboxModel(views.sky_layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
         sky_origins = views.sky_layers.relative(train.centers.double().numpy()).numpy()
+        sky_pixels = choices.sky_training_pixels(teacher.surface_depths, gbuffer.coverage, train, ctx.field.aabb,
+                                                 ctx.decisions)
     missed = ~gbuffer.coverage
     if use_skybox or (missed.any() and not ctx.background.constant):
         # the clear colour: what the missed training pixels show on average (skyboxes draw over it)
@@ -55,4 +57,4 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
     else:
         clear = ctx.background.colour
     ctx.clock.done(key=key, coverage=float(gbuffer.coverage.mean()), skyboxes=use_skybox, skybox_reason=reason)
-    return TrainingViews(origin, local_mesh, gbuffer, dirs), Backdrop(skybox, sky_origins, reason, clear)
+    return TrainingViews(origin, local_mesh, gbuffer, dirs), Backdrop(skybox, sky_origins, reason, clear, sky_pixels)

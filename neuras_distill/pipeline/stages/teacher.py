@@ -58,7 +58,7 @@ def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer,
     require(bool(np.isfinite(result.images).all()), "the field renders NaN or Inf colours; check its parameters")
     ctx.clock.done(views=len(train), key=key, render_seconds=result.seconds)
     plan_key = digest("plan", key, views.test.to_json(), settings(cfg.train, ("checkpoint_every_s",)),
-                      settings(cfg.texture), settings(cfg.eval))
+                      settings(cfg.texture), settings(cfg.eval), decisions.TRAIN_TIME_FRACTION)
     plan = ctx.cached("plan", plan_key, lambda: plan_training(ctx, result.seconds, views),
                       TrainingPlan.save, TrainingPlan.load)
     return teacher, result, plan

@@ -1,0 +1,70 @@
+"""Near misses (the field shows a foreground surface the mesh missed) stay out of the skyboxes' training:
+which pixels they are (``decisions.near_miss_pixels``) and what leaving them out does to the skybox (``fit``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from neuras_distill.neural.model import NeuralTextureModel
+from neuras_distill.neural.skybox import SkyboxLayers, SkyboxModel
+from neuras_distill.neural.train import fit
+from neuras_distill.pipeline.decisions import near_miss_pixels
+
+
+def _rays(h, w):
+    """A camera at (0, 0, -5) looking along +z: origins and unit directions (H, W, 3)."""
+    ys, xs = np.meshgrid(np.linspace(-0.3, 0.3, h), np.linspace(-0.3, 0.3, w), indexing="ij")
+    d = np.stack([xs, ys, np.ones_like(xs)], -1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    o = np.broadcast_to(np.array([0.0, 0.0, -5.0]), d.shape)
+    return lambda i: (torch.as_tensor(o.copy()), torch.as_tensor(d))
+
+
+def test_near_misses_are_uncovered_pixels_whose_surface_lies_in_the_foreground_box():
+    h, w = 4, 5
+    depth = np.zeros((1, h, w), np.float32)
+    depth[0, 0, :] = 5.0                  # hits near z = 0: inside the box
+    depth[0, 1, :] = 40.0                 # far background beyond the box
+    depth[0, 2, :] = 5.0
+    coverage = np.zeros((1, h, w), bool)
+    coverage[0, 2, :] = True              # the mesh covers row 2
+    near = near_miss_pixels(depth, coverage, _rays(h, w), torch.tensor([[-2.0, -2.0, -1.0], [2.0, 2.0, 1.0]]))
+    assert near.shape == (1, h, w) and near.dtype == bool
+    assert near[0, 0].all() and not near[0, 1:].any()      # row 3: depth 0, the field shows nothing opaque
+
+
+def _train_sky(sky_pixels):
+    h = w = 16
+    torch.manual_seed(0)
+    model = NeuralTextureModel(8, 8, feature_dim=4, num_codes=8, hidden=8, use_viewdir=False)
+    sky = SkyboxModel(SkyboxLayers((0, 0, 0), [3.0, 6.0], 4), feature_dim=4, num_codes=8, hidden=8)
+    _, d = _rays(h, w)(0)
+    d = d.float().reshape(1, h, w, 3)
+    coverage = np.zeros((1, h, w), bool)
+    coverage[0, :, :6] = True                                   # the mesh: the left columns
+    targets = np.empty((1, h, w, 3), np.float32)
+    targets[...] = (0.2, 0.4, 0.9)                              # sky
+    targets[0, :, :6] = (0.5, 0.5, 0.5)                         # mesh
+    targets[0, 4:10, 6:9] = (0.9, 0.1, 0.1)                     # a lamp the mesh missed, next to it
+    uv = np.full((1, h, w, 2), 0.5, np.float32)
+    dirs = d[..., :model.view_columns] if model.view_columns else d[..., :0]
+    fit(model, uv, coverage, dirs.numpy(), targets, steps=300, batch_patches=4, patch=8, progress=False,
+        skybox=sky, origins=np.zeros((1, 3), np.float32), sky_pixels=sky_pixels, vq_warmup=1.0)
+    with torch.no_grad():
+        rgb, _ = sky(torch.zeros(18, 3), d[0, 4:10, 6:9].reshape(-1, 3))
+    return rgb
+
+
+def test_a_skybox_left_out_of_near_misses_keeps_the_sky_there():
+    near = np.zeros((1, 16, 16), bool)
+    near[0, 4:10, 6:9] = True
+    coverage = np.zeros((1, 16, 16), bool)
+    coverage[0, :, :6] = True
+    left_out = _train_sky(~coverage & ~near)
+    trained_on = _train_sky(None)
+    blue = torch.tensor([0.2, 0.4, 0.9])
+    kept = (left_out - blue).abs().max(dim=-1).values.median()
+    smeared = (trained_on - blue).abs().max(dim=-1).values.median()
+    assert kept < 0.12, kept                                       # the sky stays sky where the lamp was
+    assert smeared > kept + 0.1, (smeared, kept)                   # trained on the lamp, the sky turns red
