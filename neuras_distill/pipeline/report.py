@@ -375,7 +375,7 @@ def _label_column(ax, points: list[tuple[str, float, float]]) -> None:
         ax.annotate(label, (x, y), xytext=(column, slot), textcoords="data", fontsize=7, va="center",
                     arrowprops={"arrowstyle": "-", "color": "0.6", "lw": 0.6})
     ax.set_xlim(x0 - 0.1 * span_x, x1 + 0.75 * span_x)
-    ax.set_ylim(y0 - 0.12 * span_y, y1 + 0.12 * span_y)
+    ax.set_ylim(min(y0, slots[0]) - 0.07 * span_y, max(y1, slots[-1]) + 0.07 * span_y)
 
 
 def write_run_outputs(root: Path, rep: dict, field_images, bundle_images, extra_views: dict | None = None,
