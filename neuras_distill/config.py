@@ -96,13 +96,14 @@ class TextureConfig:
     """Upper limit of the automatic atlas side."""
     feature_dim: int = 8
     """Channels per texel (D)."""
-    num_codes: int = 8192
-    """Vector-quantizer codebook size (K); codes never used are dropped at bake time. 8192, not the paper's 1024:
-    a smooth colour gradient needs finer steps than k-means of 1024 codes gives (gradient ball, held-out
-    interior without VQ 36.3 dB, 1024 codes 33.7, 4096 codes 35.4; the index texture stays uint16). With the
-    core at the colour level (session 8; held-out 640x360, core interior): no VQ 41.3 dB, 4096 codes 38.9,
-    8192 39.8, 16384 40.0 (k-means of 16384 codes costs another ~20 s on two cores). Tuning the codebook on the
-    photometric loss with the assignments fixed (the last 15-30% of the run) gained nothing (38.6-39.0)."""
+    num_codes: int = 32768
+    """Vector-quantizer codebook size (K); codes never used are dropped at bake time. 32768, not the paper's
+    1024: a smooth colour gradient needs finer steps than k-means of fewer codes gives, and a played 1080p view
+    magnifies them (session 15, gradient ball, same stored mesh and 3003 steps, held-out at 1920x1080: interior
+    38.29 dB with 8192 codes, 38.82 with 16384, 39.66 with 32768, 39.34 without VQ; frame time unchanged,
+    bundle 1.02 -> 1.83 MB, k-means +25 s). The index texture stays uint16 (up to 65535 codes); the codebook
+    texture wraps past GL's largest side. Tuning the codebook on the photometric loss with the assignments
+    fixed gained nothing (session 8: 38.6-39.0 against 38.9). docs/decisions.md has the history."""
     quantize: bool = True
     """Vector-quantize the atlas (``num_codes``). False stores every distinct texel feature as its own code
     (exact; only when there are at most 65535 of them: the bench's "no VQ" variant)."""
