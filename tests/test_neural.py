@@ -296,3 +296,24 @@ def test_fit_time_budget_and_bad_input():
         fit(model, uv, np.zeros_like(cov), dirs, tgt, steps=3, progress=False)
     with pytest.raises(BadInputError):
         fit(model, uv[..., :1], cov, dirs, tgt, steps=3, progress=False)
+
+
+def test_playing_a_trained_model_quantizes_each_texel_once_and_matches_the_training_path():
+    torch.manual_seed(0)
+    model = NeuralTextureModel(16, 16, feature_dim=4, num_codes=32, hidden=8, use_viewdir=False)
+    with torch.no_grad():
+        model.texture.data.normal_()
+    model.start_vq()
+    uv = torch.rand(300, 2)
+    model.train()
+    trained, aux_t = model.features(uv)                 # the per-batch quantizer of training
+    model.eval()
+    with torch.no_grad():
+        played, aux_p = model.features(uv)              # every texel's code, computed once and kept
+        again, _ = model.features(uv)
+    assert torch.equal(played, trained.detach()) and torch.equal(aux_p["indices"], aux_t["indices"])
+    assert torch.equal(again, played) and model.vq._all_codes is not None
+    with torch.no_grad():                               # a changed texel changes the kept codes' key
+        model.texture.flat.data[:] = model.vq.codebook[0]
+        moved, aux_m = model.features(uv)
+    assert (aux_m["indices"] == 0).all() and not torch.equal(moved, played)

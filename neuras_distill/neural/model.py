@@ -153,7 +153,13 @@ class NeuralTextureModel(nn.Module):
         if self.record_touched and self.training:
             with torch.no_grad():
                 self.touched[idx[w > 0]] = True
-        if self.quantizing:
+        if self.quantizing and not self.training and not torch.is_grad_enabled():
+            # playing the trained model (bake, plain texture, evaluation): every texel's code once, reused
+            uniq, inv = torch.unique(idx, return_inverse=True)
+            codes = self.vq.quantize_all(self.texture.flat.detach().float())[uniq]
+            corners = self.vq.codebook.detach()[codes][inv]
+            aux = {"vq_loss": torch.zeros((), device=uv.device), "indices": codes[inv]}
+        elif self.quantizing:
             uniq, inv = torch.unique(idx, return_inverse=True)
             z = self.texture.gather(uniq, sparse_grad=self.sparse_grad)
             zq, codes, vq_loss = self.vq(z)
