@@ -159,8 +159,8 @@ def _scene_inputs(args, name: str) -> tuple:
     from .scenes.synthetic import make_scene
 
     field = make_scene(name, kind=args.kind)
-    if args.preset is None and args.config is None:
-        args.preset = getattr(field, "preset", None)     # a scene may name the preset that fits it (street)
+    if args.preset is None:       # a scene may name the preset that fits it (street); --config FILE goes on top
+        args.preset = getattr(field, "preset", None)
     return field, None, _config_from_args(args)
 
 
@@ -296,7 +296,7 @@ def _check(args) -> int:
         options["density"] = args.density
     field, cameras = load_source(args.source, kind=args.kind, cameras_path=args.cameras, options=options)
     preset = args.preset
-    if preset is None and args.config is None:
+    if preset is None:
         preset = getattr(field, "preset", None)          # as from-synthetic: the scene's own preset
     cfg = load_config(preset=preset, path=args.config)
     report = probe_field(field, cameras, samples=args.samples, rays=args.rays, num_steps=cfg.teacher.num_steps,

@@ -93,3 +93,17 @@ def test_skybox_texture_and_eval_settings_are_validated():
                         ({"eval": {"width": 8}}, "at least 16")):
         with pytest.raises(BadInputError, match=needle):
             load_config(overrides=bad)
+
+
+def test_a_config_file_changes_a_scenes_own_preset_instead_of_replacing_it(tmp_path):
+    from neuras_distill.cli import build_parser, run_inputs
+
+    tweak = tmp_path / "codes.toml"
+    tweak.write_text("[texture]\nnum_codes = 1024\n")
+    parse = build_parser().parse_args
+    _, _, plain = run_inputs(parse(["from-synthetic", "street"]))
+    _, _, tweaked = run_inputs(parse(["from-synthetic", "street", "--config", str(tweak)]))
+    assert plain.eval.width != load_config().eval.width             # the street preset is in force
+    assert tweaked.texture.num_codes == 1024
+    tweaked.texture.num_codes = plain.texture.num_codes
+    assert tweaked.to_dict() == plain.to_dict()                     # the file changed that one setting only

@@ -195,7 +195,7 @@ class StreetField:
     #: Sideways camera shifts (metres) the pipeline evaluates for extrapolation, as the paper does.
     lane_shifts = (-3.0, -2.0, 2.0, 3.0)
     #: the configuration preset that fits this scene to a laptop (configs/street.toml); the command line uses
-    #: it when neither --preset nor --config is given
+    #: it when no --preset is given (a --config file then changes settings on top of it)
     preset = "street"
 
     def __init__(self, origin=(0.0, 0.0, 0.0), inv_s: float = STREET_INV_S):
