@@ -13,12 +13,11 @@ from neuras_distill.pipeline.decisions import near_miss_pixels
 
 
 def _rays(h, w):
-    """A camera at (0, 0, -5) looking along +z: origins and unit directions (H, W, 3)."""
+    """One camera at (0, 0, -5) looking along +z: its centre (1, 3) and unit directions (1, H, W, 3)."""
     ys, xs = np.meshgrid(np.linspace(-0.3, 0.3, h), np.linspace(-0.3, 0.3, w), indexing="ij")
     d = np.stack([xs, ys, np.ones_like(xs)], -1)
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    o = np.broadcast_to(np.array([0.0, 0.0, -5.0]), d.shape)
-    return lambda i: (torch.as_tensor(o.copy()), torch.as_tensor(d))
+    return np.array([[0.0, 0.0, -5.0]]), d[None]
 
 
 def test_near_misses_are_uncovered_pixels_whose_surface_lies_in_the_foreground_box():
@@ -29,7 +28,7 @@ def test_near_misses_are_uncovered_pixels_whose_surface_lies_in_the_foreground_b
     depth[0, 2, :] = 5.0
     coverage = np.zeros((1, h, w), bool)
     coverage[0, 2, :] = True              # the mesh covers row 2
-    near = near_miss_pixels(depth, coverage, _rays(h, w), torch.tensor([[-2.0, -2.0, -1.0], [2.0, 2.0, 1.0]]))
+    near = near_miss_pixels(depth, coverage, *_rays(h, w), torch.tensor([[-2.0, -2.0, -1.0], [2.0, 2.0, 1.0]]))
     assert near.shape == (1, h, w) and near.dtype == bool
     assert near[0, 0].all() and not near[0, 1:].any()      # row 3: depth 0, the field shows nothing opaque
 
@@ -39,8 +38,7 @@ def _train_sky(sky_pixels):
     torch.manual_seed(0)
     model = NeuralTextureModel(8, 8, feature_dim=4, num_codes=8, hidden=8, use_viewdir=False)
     sky = SkyboxModel(SkyboxLayers((0, 0, 0), [3.0, 6.0], 4), feature_dim=4, num_codes=8, hidden=8)
-    _, d = _rays(h, w)(0)
-    d = d.float().reshape(1, h, w, 3)
+    d = torch.as_tensor(_rays(h, w)[1], dtype=torch.float32)
     coverage = np.zeros((1, h, w), bool)
     coverage[0, :, :6] = True                                   # the mesh: the left columns
     targets = np.empty((1, h, w, 3), np.float32)

@@ -142,8 +142,10 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         if origins_t.shape[0] != lead[0]:
             raise BadInputError(f"fit: origins has {origins_t.shape[0]} rows for {lead[0]} views")
         covered = torch.arange(cov_f.numel())            # patches anywhere: the sky is trained too
-    sky_f = None if sky_pixels is None or skybox is None else \
-        _as_tensor(sky_pixels, torch.bool, "sky_pixels", (), lead).reshape(-1)
+    sky_f = None
+    if skybox is not None:                               # uncovered pixels the sky learns from (default: all)
+        sky_f = (torch.ones(cov_f.numel(), dtype=torch.bool) if sky_pixels is None
+                 else _as_tensor(sky_pixels, torch.bool, "sky_pixels", (), lead).reshape(-1))
     uv_f, dirs_f, tgt_f = uv_t.reshape(-1, 2), dirs_t.reshape(-1, dirs_t.shape[-1]), tgt_t.reshape(-1, 3)
 
     p = int(max(1, min(patch, h, w)))
@@ -219,14 +221,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             tgt = tgt_f[pix]
             rgb, aux = model(uv_f[pix[sel]], dirs_f[pix[sel]])
             vq_loss = aux["vq_loss"]
-            if skybox is not None and sky_f is None:  # every pixel counts: mesh where covered, sky elsewhere
-                sky = torch.nonzero(~m).flatten()
-                sky_rgb, sky_aux = skybox(origins_t[view].repeat_interleave(p * p, dim=0)[sky], dirs_f[pix[sky], :3])
-                rgb = torch.empty(pix.numel(), 3, dtype=rgb.dtype).index_put((sel,), rgb).index_put((sky,), sky_rgb)
-                sel = torch.arange(pix.numel())
-                m = torch.ones_like(m)
-                vq_loss = vq_loss + sky_aux["vq_loss"]
-            elif skybox is not None:                  # mesh where covered, sky where allowed, the rest left out
+            if skybox is not None:                    # mesh where covered, sky where allowed, the rest left out
                 learn = ~m & sky_f[pix]
                 sky = torch.nonzero(learn).flatten()
                 sky_rgb, sky_aux = skybox(origins_t[view].repeat_interleave(p * p, dim=0)[sky], dirs_f[pix[sky], :3])

@@ -84,12 +84,13 @@ def skyboxes(mode: str, coverage: np.ndarray, background: Background, record: De
     return True, reason
 
 
-def sky_training_pixels(surface_depths: np.ndarray, coverage: np.ndarray, train, aabb,
-                        record: Decisions) -> np.ndarray:
+def sky_training_pixels(surface_depths: np.ndarray, coverage: np.ndarray, origins: np.ndarray,
+                        dirs: np.ndarray, aabb, record: Decisions) -> np.ndarray:
     """(N, H, W) bool: the uncovered training pixels the skyboxes learn from: all but the near misses
     (``decisions.near_miss_pixels``: the field shows a surface inside its foreground box that the mesh missed).
-    ``train``: the training ``Cameras``. Leaving them out is recorded with their share of the pixels."""
-    near = decisions.near_miss_pixels(surface_depths, coverage, train.rays, aabb)
+    ``origins`` (N, 3), ``dirs`` (N, H, W, 3): the training rays. Leaving them out is recorded with their share
+    of the pixels."""
+    near = decisions.near_miss_pixels(surface_depths, coverage, origins, dirs, aabb)
     uncovered = ~coverage
     share = float(near.sum() / max(int(uncovered.sum()), 1))
     if near.any():

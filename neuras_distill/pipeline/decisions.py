@@ -49,8 +49,8 @@ def measure_view_dependence(field: Field, mesh: MeshData, *, num_points: int = 2
 NEAR_MISS_BOX_MARGIN = 0.01
 
 
-def near_miss_pixels(surface_depths: np.ndarray, coverage: np.ndarray, rays, aabb,
-                     margin: float = NEAR_MISS_BOX_MARGIN) -> np.ndarray:
+def near_miss_pixels(surface_depths: np.ndarray, coverage: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
+                     aabb, margin: float = NEAR_MISS_BOX_MARGIN) -> np.ndarray:
     """(N, H, W) bool: training pixels the mesh misses although the field shows an opaque surface inside its
     foreground box there (a lamp arm thinner than a voxel, the fringe of a tree). Trained into the skyboxes, such
     pixels paint foreground colours into the sky, where every other view sees them as smudges; they are left out
@@ -59,7 +59,7 @@ def near_miss_pixels(surface_depths: np.ndarray, coverage: np.ndarray, rays, aab
     Args:
         surface_depths: (N, H, W) float32 ray distances where the field's opacity reaches 0.5 (0: never).
         coverage: (N, H, W) bool, pixels the mesh covers.
-        rays: callable ``index -> (origins (H, W, 3), unit directions (H, W, 3))`` in the field's world frame.
+        origins: (N, 3) camera centres, dirs: (N, H, W, 3) unit ray directions, both in the field's world frame.
         aabb: the field's foreground box, (2, 3) or (6,) min and max corners (world frame).
         margin: box growth as a fraction of its diagonal.
     """
@@ -72,8 +72,8 @@ def near_miss_pixels(surface_depths: np.ndarray, coverage: np.ndarray, rays, aab
         candidates = ~coverage[i] & (depth > 0)
         if not candidates.any():
             continue
-        origins, dirs = (np.asarray(t, dtype=np.float64) for t in rays(i))
-        hit = origins[candidates] + dirs[candidates] * depth[candidates, None]
+        hit = (np.asarray(origins[i], dtype=np.float64)
+               + np.asarray(dirs[i][candidates], dtype=np.float64) * depth[candidates, None])
         out[i][candidates] = np.all((hit >= lo) & (hit <= hi), axis=1)
     return out
 

@@ -39,16 +39,16 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
                          lambda: rasterize_gbuffer(local_mesh, shift_cameras(train, origin),
                                                    cull_back_faces=cfg.geometry.cull_back_faces),
                          save_gbuffer, load_gbuffer)
-    dirs = view_inputs(np.stack([train.rays(i)[1].numpy() for i in range(len(train))]), gbuffer.face_id,
-                       gbuffer.normal, inputs.use_facing, local_mesh.core_faces)
+    ray_dirs = np.stack([train.rays(i)[1].numpy() for i in range(len(train))])      # (N, H, W, 3) world
+    dirs = view_inputs(ray_dirs, gbuffer.face_id, gbuffer.normal, inputs.use_facing, local_mesh.core_faces)
     use_skybox, reason = choices.skyboxes(cfg.skybox.mode, gbuffer.coverage, ctx.background, ctx.decisions)
     skybox, sky_origins, sky_pixels = None, None, None
     if use_skybox:
         sb = cfg.skybox
         skybox = SkyboxModel(views.sky_layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
         sky_origins = views.sky_layers.relative(train.centers.double().numpy()).numpy()
-        sky_pixels = choices.sky_training_pixels(teacher.surface_depths, gbuffer.coverage, train, ctx.field.aabb,
-                                                 ctx.decisions)
+        sky_pixels = choices.sky_training_pixels(teacher.surface_depths, gbuffer.coverage, train.centers.numpy(),
+                                                 ray_dirs, ctx.field.aabb, ctx.decisions)
     missed = ~gbuffer.coverage
     if use_skybox or (missed.any() and not ctx.background.constant):
         # the clear colour: what the missed training pixels show on average (skyboxes draw over it)
