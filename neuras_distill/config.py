@@ -109,6 +109,13 @@ class TextureConfig:
     (exact; only when there are at most 65535 of them: the bench's "no VQ" variant)."""
     hidden: int = 16
     """Hidden units of the MLP shader (NeuRas uses 32; 16 halves the per-pixel cost at ~0.1 dB here)."""
+    shell_hidden: int = 64
+    """Hidden units of the fringe shell's own MLP shader (a two-layer mesh, ``geometry.enclose_fringe``; 0: as
+    ``hidden``). The shell draws a soft fringe's whole fade, a function of the view direction, the facing
+    cosine and the colour under it, and only its pixels outside the core's silhouette run it. Session 16,
+    gradient ball, same stored mesh and 3003 steps, held out at 1920x1080: hidden 16 -> 64 gave silhouette band
+    27.97 -> 29.19 dB, interior 39.66 -> 39.92, whole view 40.21 -> 41.20 dB, FLIP 0.0229 -> 0.0222, for +4-8%
+    frame time (llvmpipe, interleaved medians)."""
     num_layers: int = 2
     """Linear layers of the MLP shader (2: one hidden layer; measured 32.7 dB vs 32.5 dB for 3 layers on the
     demo, with the bundle ~20 % faster at 1080p on llvmpipe)."""
@@ -207,6 +214,7 @@ class DistillConfig:
 
     def validate(self) -> "DistillConfig":
         g, t, tr = self.geometry, self.texture, self.train
+        require(t.shell_hidden >= 0, f"texture.shell_hidden must be 0 (as hidden) or positive, got {t.shell_hidden}")
         require(g.face_budget >= 4, f"face budget must be at least 4 faces, got {g.face_budget}; "
                                     "pass e.g. --face-budget 40000")
         from .geometry.unwrap import MAX_UNWRAP_FACES

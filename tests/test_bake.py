@@ -19,10 +19,10 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0, use_facing=False, mesh_layers=1,
-               core_viewdir=None):
+               core_viewdir=None, shell_hidden=None):
     torch.manual_seed(seed)
     m = NeuralTextureModel(h, w, feature_dim=dim, num_codes=k, use_viewdir=use_viewdir, use_facing=use_facing,
-                           mesh_layers=mesh_layers, core_viewdir=core_viewdir)
+                           mesh_layers=mesh_layers, core_viewdir=core_viewdir, shell_hidden=shell_hidden)
     with torch.no_grad():
         m.texture.data.normal_(0.0, 1.0)
         for layer in (layer for shader in m.shaders for layer in shader.layers):

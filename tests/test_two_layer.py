@@ -90,10 +90,11 @@ def ray_geometry(cams: Cameras, i: int) -> tuple[np.ndarray, np.ndarray]:
     return perp, depth
 
 
-def make_model(seed: int = 0, mesh_layers: int = 1, core_viewdir=None) -> NeuralTextureModel:
+def make_model(seed: int = 0, mesh_layers: int = 1, core_viewdir=None, shell_hidden=None) -> NeuralTextureModel:
     from test_bake import make_model as random_model
 
-    return random_model(h=16, w=16, seed=seed, use_facing=True, mesh_layers=mesh_layers, core_viewdir=core_viewdir)
+    return random_model(h=16, w=16, seed=seed, use_facing=True, mesh_layers=mesh_layers, core_viewdir=core_viewdir,
+                        shell_hidden=shell_hidden)
 
 
 # ---------------------------------------------------------------------------------------------- no GL needed
@@ -234,23 +235,25 @@ def test_single_layer_is_bit_for_bit_the_pre_layer_output(monkeypatch):
 # ---------------------------------------------------------------------------------------------- playback
 @gl
 @pytest.mark.gl
-@pytest.mark.parametrize("shaders,core_viewdir", [(1, None), (2, None), (2, False)])
-def test_playback_of_a_two_layer_bundle_matches_the_torch_reference(tmp_path, shaders, core_viewdir):
+@pytest.mark.parametrize("shaders,core_viewdir,shell_hidden", [(1, None, None), (2, None, None), (2, False, 28)])
+def test_playback_of_a_two_layer_bundle_matches_the_torch_reference(tmp_path, shaders, core_viewdir, shell_hidden):
     """(4) The saved and reloaded bundle plays, pixel for pixel, the torch forward pass on the two-layer
     G-buffer (view direction and facing cosine on: the facing input reads the global face id's normal); with
     a shader per layer, each layer's program runs its own MLP (also when the core's takes no direction, its
-    facing weight then reads lane 3 of the view vector)."""
+    facing weight then reads lane 3 of the view vector, and when the shell's is wider than the core's)."""
     from neuras_distill.pipeline.evaluate import gl_torch_parity
     from neuras_distill.playback.rasterize import rasterize_gbuffer
     from neuras_distill.playback.renderer import BundleRenderer
     from neuras_distill.playback.shaders import VERTEX_SHADER
     from neuras_distill.playback.viewer import render_orbit_frames
 
-    m, mesh = make_model(mesh_layers=shaders, core_viewdir=core_viewdir), two_spheres()
+    m, mesh = make_model(mesh_layers=shaders, core_viewdir=core_viewdir, shell_hidden=shell_hidden), two_spheres()
     assert m.shaders[0].use_viewdir == (core_viewdir is None) and m.shaders[-1].use_viewdir
+    assert m.shaders[-1].hidden == (shell_hidden or m.hidden)
     bg = np.float32([0.1, 0.2, 0.3])
     bundle = load_bundle(bake(m, mesh, bg, vertex_shader=VERTEX_SHADER).save(tmp_path / "b"))
     assert bundle.manifest["shaders"] == shaders
+    assert bundle.manifest["shell_mlp_hidden"] == (None if shaders == 1 else shell_hidden or m.hidden)
     cams = cameras(3, 80)
     if shaders == 2:         # the shell's own MLP: the core's MLP on every pixel (as one shader would) is far off
         core_everywhere = bake(m, mesh, bg)

@@ -305,6 +305,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
         "use_vq": bool(model.use_vq), "use_viewdir": bool(model.use_viewdir),
         "use_facing": bool(model.use_facing),
         "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
+        "shell_mlp_hidden": int(model.shaders[-1].hidden) if model.mesh_layers == 2 else None,
         "shaders": int(model.mesh_layers),
         "mesh_vertices": int(mesh.num_vertices), "mesh_faces": int(mesh.num_faces),
         "core_faces": core_faces,

@@ -147,13 +147,14 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
     c4 = (dim + 3) // 4
     use_dir = any(bool(s.use_viewdir) for s in model.shaders)
     use_facing = bool(model.use_facing)
-    layers = model.shader.weights()      # every shader has the same hidden sizes (the inputs may differ)
+    layers = model.shader.weights()      # the core's (a shell's shader may be wider: ``shell_hidden``)
 
     out: list[str] = [
         "#version 400 core",
         f"// NeuRas neural texture shader: {tex_w}x{tex_h} atlas, D={dim}, MLP "
         + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3" + (", view-dependent" if use_dir else "")
-        + (", facing" if use_facing else "") + (", one MLP per mesh layer" if model.mesh_layers == 2 else ""),
+        + (", facing" if use_facing else "")
+        + (f", one MLP per mesh layer (the shell's {model.shaders[-1].hidden} wide)" if model.mesh_layers == 2 else ""),
         "in vec2 v_uv;",
     ]
     if use_dir or use_facing:

@@ -65,7 +65,7 @@ class NeuralTextureModel(nn.Module):
         use_vq: quantize features (required to bake atlases with more than 65535 texels).
         sparse_grad: texture gradients as sparse tensors (train the texture with SparseAdam).
         mesh_layers: 2 for a two-layer mesh (``MeshData.core_faces``): the core and the shell get a shader each
-            (same size and inputs), picked per pixel by the layer column :func:`view_inputs` appends to ``dirs``.
+            (same depth and inputs; the shell's width is ``shell_hidden``), picked per pixel by the layer column :func:`view_inputs` appends to ``dirs``.
             One shader for both cost the gradient ball's interior 4.6 dB on training views (41.3 vs 45.9 dB)
             and its silhouette band 2.9 dB: the shell's fade (surface colour to background with the angle) took
             the shared MLP's capacity. Both run at the same per-pixel cost (a uniform branch in GLSL).
@@ -76,13 +76,15 @@ class NeuralTextureModel(nn.Module):
             the view: on the gradient ball (held-out 640x360, same mesh, 3000 steps, no VQ) the core's interior
             scored 41.3 dB without the direction and 39.3 dB with it. ``use_viewdir`` then says whether any
             shader takes it (the direction columns of ``dirs`` are there either way).
+        shell_hidden: with ``mesh_layers=2``, the hidden width of the shell's shader (None or 0: ``hidden``).
+            Its fragments are only those outside the core's silhouette, so a wider shell costs little.
     """
 
     def __init__(self, tex_height: int, tex_width: int, feature_dim: int = _TEXTURE.feature_dim,
                  num_codes: int = _TEXTURE.num_codes, hidden: int = _TEXTURE.hidden,
                  num_layers: int = _TEXTURE.num_layers, use_viewdir: bool = True, use_vq: bool = _TEXTURE.quantize,
                  sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False,
-                 mesh_layers: int = 1, core_viewdir: bool | None = None) -> None:
+                 mesh_layers: int = 1, core_viewdir: bool | None = None, shell_hidden: int | None = None) -> None:
         super().__init__()
         self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
         self.hidden, self.num_layers = int(hidden), int(num_layers)
@@ -94,7 +96,8 @@ class NeuralTextureModel(nn.Module):
         if core_viewdir is not None and mesh_layers == 1 and bool(core_viewdir) != bool(use_viewdir):
             raise ValueError("core_viewdir differs from use_viewdir only on a two-layer mesh (mesh_layers=2)")
         core_dir = bool(use_viewdir) if core_viewdir is None else bool(use_viewdir) and bool(core_viewdir)
-        self.shaders = nn.ModuleList(MLPShader(self.feature_dim, hidden=hidden, num_layers=num_layers,
+        widths = (int(hidden), int(shell_hidden or hidden))
+        self.shaders = nn.ModuleList(MLPShader(self.feature_dim, hidden=widths[layer], num_layers=num_layers,
                                                use_viewdir=core_dir if layer == 0 else use_viewdir,
                                                use_facing=use_facing)
                                      for layer in range(mesh_layers))
