@@ -19,6 +19,8 @@ from .errors import BadInputError, require
 Mode = Literal["auto", "on", "off"]
 #: Where a fringed density field's core mesh sits (``GeometryConfig.core_level``).
 CoreLevel = Literal["colour", "surface"]
+#: Where the shell around a colour-level core comes from (``GeometryConfig.shell``).
+ShellSource = Literal["offset", "level"]
 #: Where a density field's mesh comes from (``GeometryConfig.surface``).
 SurfaceSource = Literal["auto", "depths"]
 
@@ -72,6 +74,10 @@ class GeometryConfig:
     on a sphere, scores ~30 dB at the surface level's radius and ~41 dB at the colour level's), while the
     shell, which then draws the whole fade, is the coarser layer. The core's shader drops the view direction
     when the field's own colour does not depend on it (``pipeline.choices.core_view_dependence``)."""
+    shell: ShellSource = "level"
+    """Where the fringe shell around a colour-level core comes from: "level" (the density's own lower levels,
+    halving until they enclose the fringe) or "offset" (the core pushed out by the smallest of a series of
+    distances that encloses it, ``marching.offset_grid``: smooth where a trained NeRF's fringe is speckle)."""
     surface: SurfaceSource = "auto"
     """Where a density field's mesh comes from. "auto": its level set on the marching-cubes grid, meshed again
     from the surface depths fused over the training views when xatlas cannot unwrap that level set (a trained
@@ -225,6 +231,7 @@ class DistillConfig:
         require(0.0 <= g.cull_margin_deg < 90.0, f"cull_margin_deg must be in 0..90 degrees, got {g.cull_margin_deg}")
         _require_choice(self.texture.soft_silhouettes, Mode, "soft_silhouettes")
         _require_choice(g.surface, SurfaceSource, "geometry.surface")
+        _require_choice(g.shell, ShellSource, "geometry.shell")
         _require_choice(g.core_level, CoreLevel, "core_level")
         _require_choice(g.enclose_fringe, Mode, "enclose_fringe")
         require(t.resolution == 0 or 16 <= t.resolution <= 8192,

@@ -146,7 +146,7 @@ def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, 
                     trial_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                     density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
                     cull_margin_deg: float = 15.0, field_opacity=None, field_depth=None,
-                    core_level: str = "surface", from_depths: bool = False) -> Surface:
+                    core_level: str = "surface", from_depths: bool = False, shell: str = "level") -> Surface:
     """Sample, mesh, clean, decimate and cull the surface of ``field``, and unwrap it once at
     ``trial_resolution`` (arguments as :func:`extract_mesh`). A density field's level set that xatlas cannot
     unwrap is meshed again from the fused depths (``field_depth``); ``from_depths`` meshes the fused depths
@@ -171,7 +171,7 @@ def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, 
         timings: dict = {}
         t = time.perf_counter()
         mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check,
-                                    depth_fusion=depth_fusion, termination=termination)
+                                    depth_fusion=depth_fusion, termination=termination, shell=shell)
         timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling (and the fusion)
         mesh, layout = _simplify(mesh, train_cameras, timings, face_budget=face_budget, cull_unseen=cull_unseen,
                                  cull_margin_deg=cull_margin_deg)

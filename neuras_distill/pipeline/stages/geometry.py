@@ -64,7 +64,7 @@ def extract(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, enclose
                                cull_margin_deg=g.cull_margin_deg,
                                field_opacity=teacher.opacities if enclose else None,
                                field_depth=(teacher.surface_depths, teacher.fringe_depths, teacher.opacities),
-                               core_level=g.core_level, from_depths=g.surface == "depths")
+                               core_level=g.core_level, from_depths=g.surface == "depths", shell=g.shell)
 
     key = digest("surface", ctx.keys["teacher"], settings(g, ("cull_back_faces",)), trial_side, enclose)
     return ctx.cached("surface", key, compute, Surface.save, Surface.load)
