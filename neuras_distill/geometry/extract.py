@@ -146,7 +146,7 @@ def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, 
                     trial_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
                     density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
                     cull_margin_deg: float = 15.0, field_opacity=None, field_depth=None,
-                    core_level: str = "surface", from_depths: bool = False, shell: str = "level") -> Surface:
+                    core_level: str = "surface", from_depths: bool = False, shell: str = "offset") -> Surface:
     """Sample, mesh, clean, decimate and cull the surface of ``field``, and unwrap it once at
     ``trial_resolution`` (arguments as :func:`extract_mesh`). A density field's level set that xatlas cannot
     unwrap is meshed again from the fused depths (``field_depth``); ``from_depths`` meshes the fused depths

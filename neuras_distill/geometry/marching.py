@@ -225,7 +225,7 @@ def mesh_handles(mesh: MeshData) -> int:
 def marching_cubes_field(field: Field, resolution: int | Sequence[int], level: float | None = None, *,
                          density_step: float | None = None, chunk_points: int = 1 << 20,
                          fringe_check=None, fringe_tolerance: float = FRINGE_MISS_TOLERANCE,
-                         depth_fusion=None, termination=None, shell: str = "level") -> MeshData:
+                         depth_fusion=None, termination=None, shell: str = "offset") -> MeshData:
     """Mesh the surface of ``field`` (Field protocol: kind, aabb, geometry) in world coordinates.
 
     Args:
