@@ -119,13 +119,14 @@ class TextureConfig:
     (exact; only when there are at most 65535 of them: the bench's "no VQ" variant)."""
     hidden: int = 16
     """Hidden units of the MLP shader (NeuRas uses 32; 16 halves the per-pixel cost at ~0.1 dB here)."""
-    shell_hidden: int = 64
+    shell_hidden: int = 32
     """Hidden units of the fringe shell's own MLP shader (a two-layer mesh, ``geometry.enclose_fringe``; 0: as
     ``hidden``). The shell draws a soft fringe's whole fade, a function of the view direction, the facing
     cosine and the colour under it, and only its pixels outside the core's silhouette run it. Session 16,
-    gradient ball, same stored mesh and 3003 steps, held out at 1920x1080: hidden 16 -> 64 gave silhouette band
-    27.97 -> 29.19 dB, interior 39.66 -> 39.92, whole view 40.21 -> 41.20 dB, FLIP 0.0229 -> 0.0222, for +4-8%
-    frame time (llvmpipe, interleaved medians)."""
+    gradient ball held out at 1920x1080 (interior / band / whole view, same stored stages): 16 -> 64 wide on
+    session 15's stages 39.66 / 27.97 / 40.21 -> 39.92 / 29.19 / 41.20 dB; on session 16's (offset shell, 3756
+    steps) 32 wide 40.05 / 28.98 / 41.09 and 64 wide 40.12 / 28.97 / 41.09. Frame time against session 15's
+    16-wide bundle (``benchmarks/playback.py``, one invocation, soft pass): 32 wide +3-5%, 64 wide +12-15%."""
     num_layers: int = 2
     """Linear layers of the MLP shader (2: one hidden layer; measured 32.7 dB vs 32.5 dB for 3 layers on the
     demo, with the bundle ~20 % faster at 1080p on llvmpipe)."""
