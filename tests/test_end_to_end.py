@@ -159,7 +159,7 @@ def test_soft_fringe_gets_a_shell_and_the_facing_input(two_torch_threads):
     on, off = runs["on"].report, runs["off"].report
     stats = on["mesh_stats"]
     assert stats["mc_fringe_missed_at_surface"] > 0.02 >= stats["mc_fringe_missed"]
-    assert stats["mc_fringe_divisor"] > 1
+    assert stats["mc_shell_from"] == "offsets of the core" and stats["mc_fringe_offset_voxels"] >= 1
     # two layers: the core at the colour level, the shell only draws outside the core's silhouette, so the
     # interior is not learnt through the fringe (session 5's single shell lost interior PSNR to patches)
     assert runs["on"].bundle.mesh.core_faces is not None and stats["shell_faces"] > 0
