@@ -32,6 +32,9 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
     p.add_argument("--no-keep-work", dest="keep_work", action="store_false",
                    help="remove the work area (stored stages, G-buffers) after success instead of keeping it in "
                         "<out>/work for the next run into the same folder")
+    p.add_argument("--device", default="auto", metavar="DEVICE",
+                   help="where the field, the teacher and training compute: auto (a GPU when torch sees one), "
+                        "cpu, cuda or cuda:N (default auto; the bundle is played by OpenGL)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -245,11 +248,14 @@ def _distill_command(args) -> int:
     from .pipeline.rundir import check_output_folder
     from .pipeline.run import distill
 
+    from .device import resolve_device
+
     out = Path(args.out) if args.out else _default_out(args)
     check_output_folder(out.resolve())  # fail before any work
+    resolve_device(args.device)
     field, cameras, cfg = run_inputs(args)
     distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
-            fresh=args.fresh, keep_work=args.keep_work, source=_source(args))
+            fresh=args.fresh, keep_work=args.keep_work, source=_source(args), device=args.device)
     return 0
 
 

@@ -98,7 +98,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         lr_final_ratio: float = 0.1,
         time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
         seed: int = _TRAIN.seed, num_threads: int | None = None, skybox=None, origins=None,
-        sky_pixels=None, checkpoint=None) -> TrainLog:
+        sky_pixels=None, checkpoint=None, device: torch.device | str | None = None) -> TrainLog:
     """Train ``model`` on teacher images.
 
     Args:
@@ -120,8 +120,10 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             field shows a surface there that the mesh missed, which the skybox must not smear over the sky).
         checkpoint: optional :class:`neural.train_checkpoint.TrainCheckpoint`: the loop starts from its stored
             state when it has one (``TrainLog.resumed_from_step``) and saves its state when it is due.
+        device: where the model (and skybox) train; None: where the model is. The G-buffers and targets stay in
+            host memory: each step's batch is drawn there (same random numbers on every device) and sent over.
     Returns:
-        :class:`TrainLog`. The model is left in eval mode with untouched texels filled.
+        :class:`TrainLog`. The model (and skybox) is left on the host in eval mode with untouched texels filled.
     """
     if steps < 1:
         raise BadInputError(f"fit: steps must be >= 1, got {steps}")
@@ -149,6 +151,11 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     uv_f, dirs_f, tgt_f = uv_t.reshape(-1, 2), dirs_t.reshape(-1, dirs_t.shape[-1]), tgt_t.reshape(-1, 3)
 
     p = int(max(1, min(patch, h, w)))
+    device = torch.device(device) if device is not None else model.texture.data.device
+    model.to(device)
+    if skybox is not None:
+        skybox.to(device)
+        origins_t = origins_t.to(device)
     gen = torch.Generator().manual_seed(seed)
     dy, dx = torch.meshgrid(torch.arange(p), torch.arange(p), indexing="ij")
     use_ssim = ssim_weight > 0 and p >= 7
@@ -216,16 +223,18 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             left = (cx - p // 2).clamp(0, w - p)
             pix = (view[:, None, None] * (h * w) + (top[:, None, None] + dy) * w + (left[:, None, None] + dx))
             pix = pix.reshape(-1)
-            m = cov_f[pix]
+            m, tgt = cov_f[pix].to(device), tgt_f[pix].to(device)
+            uv_b, dirs_b = uv_f[pix].to(device), dirs_f[pix].to(device)
             sel = torch.nonzero(m).flatten()
-            tgt = tgt_f[pix]
-            rgb, aux = model(uv_f[pix[sel]], dirs_f[pix[sel]])
+            rgb, aux = model(uv_b[sel], dirs_b[sel])
             vq_loss = aux["vq_loss"]
             if skybox is not None:                    # mesh where covered, sky where allowed, the rest left out
-                learn = ~m & sky_f[pix]
+                learn = ~m & sky_f[pix].to(device)
                 sky = torch.nonzero(learn).flatten()
-                sky_rgb, sky_aux = skybox(origins_t[view].repeat_interleave(p * p, dim=0)[sky], dirs_f[pix[sky], :3])
-                full = torch.zeros(pix.numel(), 3, dtype=rgb.dtype).index_put((sel,), rgb).index_put((sky,), sky_rgb)
+                sky_rgb, sky_aux = skybox(origins_t[view.to(device)].repeat_interleave(p * p, dim=0)[sky],
+                                          dirs_b[sky, :3])
+                full = torch.zeros(pix.numel(), 3, dtype=rgb.dtype, device=device).index_put(
+                    (sel,), rgb).index_put((sky,), sky_rgb)
                 m = m | learn
                 sel = torch.nonzero(m).flatten()
                 rgb = full[sel]
@@ -268,6 +277,9 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         log.seconds - (float(stored["elapsed"]) if stored is not None else 0.0), 1e-9)
     if checkpoint is not None:
         log.checkpoints_written = checkpoint.saved
+    model.cpu()                    # the trained model leaves on the host (quantization and texel fill run there)
+    if skybox is not None:
+        skybox.cpu()
     if model.use_vq and not model.quantizing:      # quantize after training (or the warm-up outlasted the run)
         for m_ in models:
             m_.start_vq()

@@ -155,9 +155,10 @@ class VectorQuantizer(nn.Module):
         """k-means initialisation of the codebook from z (M, D) (a random sample of at most max_samples rows).
 
         Seeds with k-means++ on at most 16*K rows (random rows with replacement when M < K, plus tiny jitter so codes differ),
-        then ``iters`` Lloyd iterations; empty clusters keep their previous centre.
+        then ``iters`` Lloyd iterations; empty clusters keep their previous centre. Runs on the host whatever
+        the codebook's device (the generator is a host one: the same codes on every device).
         """
-        z = z.detach().float()
+        z = z.detach().float().cpu()
         if z.shape[0] == 0:
             raise ValueError("init_from needs at least one vector")
         if z.shape[0] > max_samples:

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter
 
 from .. import metrics
+from ..device import synchronize
 from ..render.cameras import Cameras
 
 
@@ -45,9 +46,14 @@ def render_field_views(renderer, cameras: Cameras, progress=None, *, depths: boo
     """Volume-render every camera (timed, one frame at a time); the surface and fringe depths only with
     ``depths`` (the teacher's views; timed held-out renders do not track them)."""
     renders = FieldRenders([], [], [], [], [])
+    device = getattr(renderer, "device", None)
+    if device is not None and device.type == "cuda" and len(cameras):
+        renderer.render(cameras, 0, crossings=depths)   # warm-up on a GPU (kernels, allocator): not timed
     for i in range(len(cameras)):
+        synchronize(device)
         t0 = time.perf_counter()
         out = renderer.render(cameras, i, crossings=depths)
+        synchronize(device)
         renders.seconds.append(time.perf_counter() - t0)
         renders.images.append(out["rgb"])
         renders.opacities.append(out["opacity"])

@@ -211,7 +211,9 @@ def report_blocks(rep: dict) -> list[tuple]:
         ("para", f"Held-out views: {rep['views']['test']} at {w}x{h}; trained on {rep['views']['train']} views at "
                  f"{rep['views']['train_resolution'][0]}x{rep['views']['train_resolution'][1]}."),
         ("table", header, rows),
-        ("para", f"Devices: field on {rep['device']['field']}; bundle on {rep['device']['bundle']}."),
+        ("para", f"Devices: field and teacher on {rep['device']['field']}; training on "
+                 f"{rep['device'].get('training', rep['device']['field'])}; bundle on {rep['device']['bundle']}."
+                 + (f" {rep['device']['bundle_note']}." if rep['device'].get('bundle_note') else "")),
         ("heading", 2, "Time per stage"),
         ("table", ("stage", "seconds"), stages),
         *_skybox_blocks(rep),

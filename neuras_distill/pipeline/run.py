@@ -28,7 +28,8 @@ import numpy as np
 import torch
 
 from ..config import DistillConfig, load_config
-from ..errors import require
+from ..device import OUT_OF_MEMORY, out_of_memory_message
+from ..errors import BadInputError, require
 from ..render.cameras import Cameras
 from . import report as report_mod, stages
 from .cache import StageCache
@@ -54,7 +55,7 @@ class DistillResult:
 
 def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig | dict | None = None,
             out: str | Path | None = None, *, log=None, progress: bool = True, fresh: bool = False,
-            keep_work: bool = True, source: dict | None = None, reuse_from=()) -> DistillResult:
+            keep_work: bool = True, source: dict | None = None, reuse_from=(), device="auto") -> DistillResult:
     """Distill ``field`` into a bundle that OpenGL plays, and measure it against the field.
 
     Args:
@@ -73,13 +74,18 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
             the field's class.
         reuse_from: more work areas (``<run>/work`` folders) whose stored stages may be reused (hard-linked)
             when their keys match: the bench distils its variants from the run's teacher, mesh and G-buffers.
+        device: where the field, the teacher, the held-out field renders and training compute: ``"auto"``
+            (the first GPU when torch sees one, else the CPU), ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or a
+            :class:`torch.device`. A field's tensors are moved there in place. The bundle is played by OpenGL.
     Returns:
         DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``.
     Raises:
         BadInputError: for anything the user can fix (message says what and how).
     """
+    from ..device import resolve_device
     from ..fields.base import check_field
 
+    device = resolve_device(device)
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     if config is None:
         cfg = DistillConfig().validate()
@@ -95,7 +101,7 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
     np.random.seed(cfg.train.seed)
 
     if out is None:
-        return _run(field, cameras, cfg, None, log, progress, stability, source=source)
+        return _run(field, cameras, cfg, None, log, progress, stability, source=source, device=device)
     folder = RunFolder(out, keep_work=keep_work)
     with folder as tmp:
         if folder.resumed_folder:
@@ -105,7 +111,7 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
         cache = StageCache(folder.work, [folder.previous_work, *map(Path, reuse_from)], fresh=fresh, log=log)
         try:
             result = _run(field, cameras, cfg, tmp, log, progress, stability, cache=cache, keep_work=keep_work,
-                          source=source)
+                          source=source, device=device)
         except BaseException:
             if folder.work.is_dir() and any(folder.work.glob("*/*/done.json")):
                 log(f"finished stages are kept in {tmp}; the same command reuses them (--fresh ignores them)")
@@ -166,22 +172,25 @@ def _pick_cameras(field: Field, cameras, cfg: DistillConfig) -> Cameras:
 
 def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool,
          stability: dict | None = None, cache: StageCache | None = None, keep_work: bool = True,
-         source: dict | None = None) -> DistillResult:
+         source: dict | None = None, device: torch.device = torch.device("cpu")) -> DistillResult:
     """The seven stages in order (``pipeline.stages``), then the report."""
     from ..playback.context import gl_info
 
     t_start = time.perf_counter()
-    ctx = RunContext(field, cfg, root, cache, log, progress)
-    views = stages.split_cameras(ctx, cameras)
-    teacher, teacher_views, plan = stages.render_teacher(ctx, views)
-    geometry, inputs, plan = stages.geometry_stage(ctx, views, teacher_views, plan)
-    training, backdrop = stages.gbuffer_stage(ctx, views, teacher_views, geometry, inputs)
-    distilled = stages.distill_stage(ctx, teacher_views, plan, training, inputs, backdrop)
-    bundle = stages.bake_stage(ctx, views, teacher_views, training, distilled, backdrop)
-    evaluation = stages.evaluation_stage(ctx, views, teacher, training, distilled, backdrop, bundle)
+    ctx = RunContext(field, cfg, root, cache, log, progress, device=device)
+    try:
+        views = stages.split_cameras(ctx, cameras)
+        teacher, teacher_views, plan = stages.render_teacher(ctx, views)
+        geometry, inputs, plan = stages.geometry_stage(ctx, views, teacher_views, plan)
+        training, backdrop = stages.gbuffer_stage(ctx, views, teacher_views, geometry, inputs)
+        distilled = stages.distill_stage(ctx, teacher_views, plan, training, inputs, backdrop)
+        bundle = stages.bake_stage(ctx, views, teacher_views, training, distilled, backdrop)
+        evaluation = stages.evaluation_stage(ctx, views, teacher, training, distilled, backdrop, bundle)
+    except OUT_OF_MEMORY as exc:                    # a GPU that ran out of memory mid-run: one line, exit 2
+        raise BadInputError(out_of_memory_message(device, ctx.clock.current)) from exc
 
     rep = build_report(ctx, views, geometry, inputs, plan, training, backdrop, distilled, bundle, evaluation,
-                       stability=stability, source=source, gl_info=gl_info())
+                       stability=stability, source=source, gl_info=gl_info(), device=device)
     rep["resumed"] = {"stages": list(cache.reused) if cache is not None else [],
                       "from_step": distilled.log.get("resumed_from_step")}
     if cache is not None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import platform
 import sys
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -17,27 +16,34 @@ from .stage_results import (Backdrop, CameraSplit, DistilledModel, Evaluation, G
 from .stages.context import RunContext
 
 
-def device_info(gl_info: dict | None) -> dict:
-    """What ran each side: the field's CPU or GPU, the bundle's OpenGL renderer."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    field_side = f"CPU: {cpu} ({torch.get_num_threads()} threads), torch {torch.__version__}"
-    if torch.cuda.is_available():
-        field_side = f"GPU: {torch.cuda.get_device_name(0)}"
+def device_info(gl_info: dict | None, device: torch.device | str = "cpu") -> dict:
+    """What ran each side: ``field`` (the field, the teacher and the held-out field renders), ``training`` (the
+    neural texture's optimisation), ``bundle`` (OpenGL's renderer; ``bundle_note`` when a software renderer
+    played it on a machine with a GPU), ``requested`` (the resolved ``--device``)."""
+    from ..device import describe
+
+    compute = describe(device)
     gl = gl_info or {}
-    return {"field": field_side, "bundle": f"OpenGL: {gl.get('renderer', '?')} ({gl.get('version', '?')})",
-            "python": sys.version.split()[0], "platform": platform.platform()}
+    renderer = str(gl.get("renderer", "?"))
+    out = {"field": compute, "training": compute,
+           "bundle": f"OpenGL: {renderer} ({gl.get('version', '?')})",
+           "requested": str(torch.device(device)), "python": sys.version.split()[0], "platform": platform.platform()}
+    if torch.cuda.is_available() and software_gl(renderer):
+        out["bundle_note"] = ("the bundle was played by a software OpenGL renderer on a machine with a GPU: its "
+                              "frame rate is not the GPU's; install the vendor's EGL driver (NVIDIA: "
+                              "libnvidia-gl, libegl1) so that EGL picks the GPU")
+    return out
+
+
+def software_gl(renderer: str) -> bool:
+    """Whether an OpenGL renderer string names a software rasterizer (Mesa llvmpipe / softpipe, SwiftShader)."""
+    return any(word in renderer.lower() for word in ("llvmpipe", "softpipe", "swiftshader", "software"))
 
 
 def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, inputs: ShaderInputs,
                  plan: TrainingPlan, training: TrainingViews, backdrop: Backdrop, distilled: DistilledModel, bundle: Bundle,
-                 ev: Evaluation, *, stability: dict | None, source: dict | None, gl_info: dict | None) -> dict:
+                 ev: Evaluation, *, stability: dict | None, source: dict | None, gl_info: dict | None,
+                 device: torch.device | str = "cpu") -> dict:
     """``report.json`` without the timing of the whole run and the work area (``pipeline.run`` adds them)."""
     cfg, train, test, mesh = ctx.cfg, views.train, views.test, geometry.mesh
     field_seconds = ev.field_views.seconds
@@ -52,7 +58,7 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "fps_after": fps_after,
         "speedup": fps_after / fps_before,
         "resolution": [test.width, test.height],
-        "device": device_info(gl_info),
+        "device": device_info(gl_info, device),
         "psnr": ev.quality["psnr"],
         "ssim": ev.quality["ssim"],
         "lpips": None,

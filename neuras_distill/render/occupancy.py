@@ -18,6 +18,7 @@ import math
 
 import torch
 
+from ..device import field_device
 from ..errors import require
 
 
@@ -40,6 +41,16 @@ class OccupancyGrid:
         # padded by one empty cell on every side so that out-of-box points need no separate test
         self._padded = torch.nn.functional.pad(occupied, (1, 1, 1, 1, 1, 1)).reshape(-1).contiguous()
         self._pshape = [int(s) + 2 for s in occupied.shape]
+
+    def to(self, device: torch.device | str) -> "OccupancyGrid":
+        """The same grid with its tables on ``device`` (self when they are already there)."""
+        device = torch.device(device)
+        if self._padded.device.type == device.type and self._padded.device == device:
+            return self
+        grid = OccupancyGrid.__new__(OccupancyGrid)
+        grid.aabb, grid.occupied, grid.cell = self.aabb.to(device), self.occupied.to(device), self.cell.to(device)
+        grid.shape, grid._padded, grid._pshape = self.shape, self._padded.to(device), self._pshape
+        return grid
 
     @property
     def resolution(self) -> int:
@@ -107,10 +118,15 @@ class OccupancyGrid:
         axes = [aabb[0, k] + (torch.arange(r) + 0.5) * cell[k] for k in range(3)]
         centers = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
         out = torch.empty(centers.shape[0], dtype=torch.bool)
+        on = field_device(field)           # the field's device; the grid itself is built on the host
+
+        def geometry(points: torch.Tensor) -> torch.Tensor:
+            return field.geometry(points.to(on)).reshape(-1).float().cpu()
+
         with torch.no_grad():
             if field.kind == "sdf":
                 inv_s = default_inv_s(field)
-                values = torch.cat([field.geometry(centers[i:i + chunk]).reshape(-1).float()
+                values = torch.cat([geometry(centers[i:i + chunk])
                                     for i in range(0, centers.shape[0], chunk)]).reshape(r, r, r)
                 lipschitz = _local_lipschitz(values, cell)          # (R, R, R), >= 1
                 if margin is None:
@@ -127,7 +143,7 @@ class OccupancyGrid:
                     best = torch.zeros(c.shape[0])
                     for _ in range(max(1, samples_per_cell)):
                         jitter = (torch.rand(c.shape, generator=gen) - 0.5) * cell
-                        best = torch.maximum(best, field.geometry(c + jitter).reshape(-1).float())
+                        best = torch.maximum(best, geometry(c + jitter))
                     out[i:i + chunk] = best > threshold
                 occ = out.reshape(r, r, r)
                 occ = torch.nn.functional.max_pool3d(occ[None, None].float(), 3, stride=1, padding=1)[0, 0] > 0

@@ -10,7 +10,10 @@ This module owns :class:`VolumeRenderer`. It is a fair, good renderer (DESIGN.md
   only occupied samples are compacted and sent to the field;
 * early termination: after each segment, rays whose transmittance fell below ``early_stop`` are dropped;
 * radiance is evaluated only at samples whose compositing weight exceeds ``min_weight``;
-* everything is float32, chunked over rays (memory bounded at any resolution), under ``torch.no_grad``.
+* everything is float32, chunked over rays (memory bounded at any resolution), under ``torch.no_grad``;
+* it computes on the field's device (``device=`` overrides): rays, occupancy grid and compositing move there,
+  :meth:`render` returns host numpy, :meth:`time_frames` synchronises the device around each timed frame and
+  leaves a warm-up frame untimed on a GPU.
 
 Opacity models: density fields use σ at the interval midpoints with α = 1 − exp(−σδ) (stable forms in
 :mod:`~neuras_distill.render.compositing`); SDF fields use the NeuS discrete opacity from the SDF at the
@@ -33,6 +36,7 @@ import time
 import numpy as np
 import torch
 
+from ..device import chunk_for_memory, field_device, synchronize
 from ..errors import require
 from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth, transmittance_from_alpha
 from .occupancy import OccupancyGrid, default_inv_s
@@ -63,18 +67,21 @@ class VolumeRenderer:
 
     def __init__(self, field, num_steps: int = 256, chunk: int = 2**15, occupancy="auto",
                  early_stop: float = 1e-4, *, segment: int = 32, min_weight: float = 1e-5,
-                 occupancy_resolution: int = 128):
+                 occupancy_resolution: int = 128, device: torch.device | str | None = None):
         require(getattr(field, "kind", None) in ("density", "sdf"),
                 f"cannot volume-render a field of kind {getattr(field, 'kind', None)!r}")
         require(int(num_steps) >= 1, f"num_steps must be >= 1, got {num_steps}")
         self.field = field
         self.kind = field.kind
-        self.aabb = torch.as_tensor(field.aabb, dtype=torch.float32).reshape(2, 3).cpu()
+        self.device = torch.device(device) if device is not None else field_device(field)
+        self.aabb = torch.as_tensor(field.aabb, dtype=torch.float32).reshape(2, 3).to(self.device)
         self.num_steps = int(num_steps)
-        self.diagonal = float((self.aabb[1] - self.aabb[0]).norm())
+        self.diagonal = float((self.aabb[1] - self.aabb[0]).norm().cpu())
         self.step = self.diagonal / self.num_steps
-        self.chunk = max(1, int(chunk))
         self.segment = max(1, int(segment))
+        # on a GPU: as many rays as a quarter of its free memory holds (about segment * 40 bytes each, x4 for
+        # the field's own temporaries); on the CPU the given chunk
+        self.chunk = max(1, chunk_for_memory(int(chunk), self.segment * 160, self.device))
         self.early_stop = float(early_stop)
         self.min_weight = float(min_weight)
         self.inv_s = default_inv_s(field) if self.kind == "sdf" else None
@@ -84,7 +91,7 @@ class VolumeRenderer:
             occupancy = provided(occupancy_resolution) if callable(provided) else None
             if occupancy is None:
                 occupancy = OccupancyGrid.from_field(field, occupancy_resolution, step=self.step)
-        self.occupancy: OccupancyGrid | None = occupancy
+        self.occupancy: OccupancyGrid | None = occupancy.to(self.device) if occupancy is not None else None
         self.stats = {"geometry_points": 0, "radiance_points": 0, "rays": 0}
 
     def __repr__(self) -> str:
@@ -100,7 +107,7 @@ class VolumeRenderer:
         color = getattr(self.field, "background_color", None)
         if color is None:
             return torch.zeros_like(dirs)
-        return torch.as_tensor(color, dtype=torch.float32).reshape(1, 3).expand_as(dirs)
+        return torch.as_tensor(color, dtype=torch.float32).to(dirs.device).reshape(1, 3).expand_as(dirs)
 
     # ------------------------------------------------------------------ rays
     @torch.no_grad()
@@ -111,8 +118,8 @@ class VolumeRenderer:
         Returns ``{"rgb": (N, 3), "depth", "surface_depth", "fringe_depth", "opacity": (N,)}`` float32 tensors;
         the surface and fringe depths only with ``crossings`` (zeros otherwise; the teacher asks for them).
         """
-        origins = origins.reshape(-1, 3).float()
-        dirs = dirs.reshape(-1, 3).float()
+        origins = origins.reshape(-1, 3).float().to(self.device)
+        dirs = dirs.reshape(-1, 3).float().to(self.device)
         outs = [self._render_chunk(origins[i:i + self.chunk], dirs[i:i + self.chunk], crossings)
                 for i in range(0, origins.shape[0], self.chunk)]
         return {k: torch.cat([o[k] for o in outs], dim=0) for k in OUTPUTS}
@@ -121,10 +128,11 @@ class VolumeRenderer:
                       crossings: bool = False) -> dict[str, torch.Tensor]:
         n_rays = origins.shape[0]
         self.stats["rays"] += n_rays
-        out_rgb = torch.zeros(n_rays, 3)
-        out_wt = torch.zeros(n_rays)
-        out_w = torch.zeros(n_rays)
-        out_half = torch.zeros(n_rays, 2)
+        on = {"device": origins.device}
+        out_rgb = torch.zeros(n_rays, 3, **on)
+        out_wt = torch.zeros(n_rays, **on)
+        out_w = torch.zeros(n_rays, **on)
+        out_half = torch.zeros(n_rays, 2, **on)
         t_near, t_far, hit = ray_aabb(origins, dirs, self.aabb)
         ids = torch.nonzero(hit).flatten()
         if ids.numel():
@@ -133,12 +141,12 @@ class VolumeRenderer:
             length = t_far[ids] - t0
             n_steps = torch.ceil(length / self.step).clamp(min=1)
             dt = length / n_steps
-            acc_rgb = torch.zeros(ids.numel(), 3)
-            acc_wt = torch.zeros(ids.numel())
-            acc_w = torch.zeros(ids.numel())
-            acc_half = torch.zeros(ids.numel(), 2)
-            trans = torch.ones(ids.numel())
-            ks = torch.arange(self.segment, dtype=torch.float32)
+            acc_rgb = torch.zeros(ids.numel(), 3, **on)
+            acc_wt = torch.zeros(ids.numel(), **on)
+            acc_w = torch.zeros(ids.numel(), **on)
+            acc_half = torch.zeros(ids.numel(), 2, **on)
+            trans = torch.ones(ids.numel(), **on)
+            ks = torch.arange(self.segment, dtype=torch.float32, **on)
             k0 = 0
             while ids.numel():
                 trans = self._march_segment(k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w,
@@ -177,14 +185,14 @@ class VolumeRenderer:
             rows = flat // n_k
             pts = torch.addcmul(o[rows], t_mid.reshape(-1)[flat][:, None], d[rows])
             self.stats["geometry_points"] += pts.shape[0]
-            sigma = torch.zeros(n_live * n_k)
+            sigma = torch.zeros(n_live * n_k, device=o.device)
             sigma[flat] = self.field.geometry(pts).reshape(-1).float()
             tau = optical_depth(sigma.reshape(n_live, n_k), dt[:, None])
             alpha = -torch.expm1(-tau)
             t_seg = trans[:, None] * torch.exp(-exclusive_cumsum(tau))
             trans_after = trans * torch.exp(-tau.sum(-1))
         else:
-            ends = torch.zeros(n_live, n_k + 1, dtype=torch.bool)
+            ends = torch.zeros(n_live, n_k + 1, dtype=torch.bool, device=o.device)
             ends[:, :-1] |= occ
             ends[:, 1:] |= occ
             eflat = torch.nonzero(ends.reshape(-1)).flatten()
@@ -193,7 +201,7 @@ class VolumeRenderer:
             t_end = torch.addcmul(t0[rows], cols.float() + k0, dt[rows])
             pts = torch.addcmul(o[rows], t_end[:, None], d[rows])
             self.stats["geometry_points"] += pts.shape[0]
-            f = torch.full((n_live * (n_k + 1),), _FAR_SDF)
+            f = torch.full((n_live * (n_k + 1),), _FAR_SDF, device=o.device)
             f[eflat] = self.field.geometry(pts).reshape(-1).float()
             f = f.reshape(n_live, n_k + 1)
             alpha = alpha_from_sdf(f[:, :-1], f[:, 1:], self.inv_s) * occ
@@ -229,7 +237,8 @@ class VolumeRenderer:
         :meth:`render_rays`)."""
         origins, dirs = cameras.rays(index)
         h, w = cameras.height, cameras.width
-        out = self.render_rays(origins.reshape(-1, 3), dirs.reshape(-1, 3), crossings=crossings)
+        out = {k: v.cpu() for k, v in self.render_rays(origins.reshape(-1, 3), dirs.reshape(-1, 3),
+                                                        crossings=crossings).items()}
         return {"rgb": out["rgb"].reshape(h, w, 3).numpy().astype(np.float32),
                 "depth": out["depth"].reshape(h, w).numpy().astype(np.float32),
                 "surface_depth": out["surface_depth"].reshape(h, w).numpy().astype(np.float32),
@@ -240,9 +249,13 @@ class VolumeRenderer:
         """Render the given camera indices and return ``{"seconds_per_frame", "fps", "frames"}`` (median)."""
         indices = list(range(len(cameras))) if indices is None else list(indices)
         times = []
+        if self.device.type == "cuda" and indices:       # warm-up (kernels, allocator) is not timed
+            self.render(cameras, indices[0])
         for i in indices:
+            synchronize(self.device)
             start = time.perf_counter()
             self.render(cameras, i)
+            synchronize(self.device)
             times.append(time.perf_counter() - start)
         spf = float(np.median(times))
         return {"seconds_per_frame": spf, "fps": 1.0 / spf if spf > 0 else math.inf, "frames": len(times)}

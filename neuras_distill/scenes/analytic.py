@@ -59,11 +59,11 @@ class AnalyticSDFField:
     def radiance(self, x: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
         """x (N, 3), d (N, 3) -> (N, 3) colour in [0, 1]."""
         x, d = x.float(), d.float()
-        lo, hi = self.aabb[0], self.aabb[1]
+        lo, hi = self.aabb[0].to(x.device), self.aabb[1].to(x.device)     # aabb: host metadata
         u = ((x - lo) / (hi - lo)).clamp(0.0, 1.0)
-        albedo = 0.15 + 0.75 * (0.5 + 0.5 * torch.sin(2.0 * math.pi * u + torch.tensor([0.0, 2.1, 4.2])))
+        albedo = 0.15 + 0.75 * (0.5 + 0.5 * torch.sin(2.0 * math.pi * u + x.new_tensor([0.0, 2.1, 4.2])))
         n = self.normal(x)
-        light = torch.nn.functional.normalize(torch.tensor([0.4, -0.3, 0.85]), dim=0)
+        light = torch.nn.functional.normalize(x.new_tensor([0.4, -0.3, 0.85]), dim=0)
         ndl = (n * light).sum(-1, keepdim=True)
         shade = 0.45 + 0.55 * ((ndl + 0.3) / 1.3).clamp(min=0.0)
         rgb = albedo * shade

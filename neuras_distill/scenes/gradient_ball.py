@@ -118,7 +118,7 @@ class GradientBallField:
         """(N, 3) colour of the gradient from the direction of x from the centre (smooth, in [0.08, 0.92])."""
         n = F.normalize(x.float() - self.center, dim=-1, eps=1e-12)
         t = (n * self._axis).sum(-1, keepdim=True)
-        phase = torch.tensor([0.0, 1.0 / 3.0, 2.0 / 3.0])
+        phase = x.new_tensor([0.0, 1.0 / 3.0, 2.0 / 3.0])
         return 0.5 + PALETTE_AMPLITUDE * torch.cos(2.0 * math.pi * (t + phase))
 
     def radiance(self, x: torch.Tensor, d: torch.Tensor) -> torch.Tensor:

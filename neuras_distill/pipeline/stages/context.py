@@ -15,6 +15,7 @@ import torch
 
 from ... import __version__
 from ...config import DistillConfig
+from ...device import on_device
 from ...fields.base import Field
 from ..cache import StageCache, field_fingerprint
 from ..choices import Background, Decisions
@@ -44,6 +45,11 @@ class StageClock:
         self._name, self._t0 = name, time.perf_counter()
         seed_stage(self.seed, name)
 
+    @property
+    def current(self) -> str | None:
+        """The stage started last (None before the first)."""
+        return self._name or None
+
     def done(self, **info) -> float:
         seconds = time.perf_counter() - self._t0
         self.seconds[self._name] = round(seconds, 3)
@@ -72,6 +78,9 @@ class RunContext:
         log: one line to the user; progress: whether to print per-view progress.
         clock: stage announcements, seeds and times; decisions: what was kept and left out, in order.
         keys: each stored stage's key (``pipeline.cache.digest``), filled in as the stages run.
+        device: where the field, the teacher and training compute (``neuras_distill.device``); on a GPU
+            ``field`` is replaced by a :class:`~neuras_distill.device.DeviceField` after the fingerprint (of the
+            host field: the same keys on every device) is taken.
     """
 
     field: Field
@@ -83,11 +92,13 @@ class RunContext:
     clock: StageClock = None
     decisions: Decisions = dataclass_field(default_factory=Decisions)
     keys: dict = dataclass_field(default_factory=dict)
+    device: torch.device = dataclass_field(default_factory=lambda: torch.device("cpu"))
 
     def __post_init__(self) -> None:
         if self.clock is None:
             self.clock = StageClock(self.root, self.log, self.cfg.train.seed)
         self.fingerprint = field_fingerprint(self.field)
+        self.field = on_device(self.field, self.device)
         self._background: Background | None = None
 
     @property

@@ -44,7 +44,7 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
                   batch_patches=tr.batch_patches, patch=tr.patch, ssim_weight=tr.ssim_weight,
                   vq_warmup=tr.vq_warmup, time_budget_s=plan.time_budget_s, progress=ctx.progress, seed=tr.seed,
                   skybox=skybox, origins=backdrop.sky_origins, sky_pixels=backdrop.sky_pixels,
-                  checkpoint=checkpoint)
+                  checkpoint=checkpoint, device=ctx.device)
         if log.resumed_from_step:
             ctx.log(f"distill: continued from the checkpoint at step {log.resumed_from_step}")
         return TrainedModel.of(model, skybox, log.as_dict())

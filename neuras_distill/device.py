@@ -1,0 +1,257 @@
+"""Which torch device a run computes on: ``--device auto|cpu|cuda[:N]`` and ``nd.distill(device=...)``.
+
+This module owns the parsing of a device string into a :class:`torch.device` (one clear
+:class:`~neuras_distill.errors.BadInputError` for a string that is not a device, a CUDA request on a torch or a
+machine without CUDA, an index that does not exist), moving a field's tensors and modules onto a device
+(:func:`move_field`), honest timing (:func:`synchronize` before a clock is read), free memory
+(:func:`free_bytes`), the words the report uses for a device (:func:`describe`), and turning a GPU running out of
+memory into one line saying what to change (:func:`out_of_memory_message`).
+
+What runs on the chosen device: the field (adapters' modules, synthetic fields' tensors), the teacher and the
+held-out field renders (rays, occupancy grid, compositing), grid sampling for marching cubes, training and the
+quantizer. Numpy appears only at stage boundaries (stored stages, G-buffers, images). The bundle is played by
+OpenGL, whichever device that is (``playback.context.gl_info``).
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import torch
+
+from .errors import BadInputError
+
+#: What torch raises when a GPU runs out of memory (``torch.OutOfMemoryError`` since torch 2.5).
+OUT_OF_MEMORY = getattr(torch, "OutOfMemoryError", torch.cuda.OutOfMemoryError)
+
+#: The device strings the command line and ``nd.distill`` take.
+DEVICE_CHOICES = "auto, cpu, cuda or cuda:N"
+
+#: Field attributes that stay on the host whatever the device: metadata every stage reads there (the box, the
+#: constant background, the cameras). A field's own code that computes with them moves them to its inputs.
+HOST_ATTRIBUTES = ("aabb", "background_color", "cameras")
+
+_PATTERN = re.compile(r"^(auto|cpu|cuda)(?::(\d+))?$")
+
+
+def resolve_device(spec: str | torch.device | None = "auto") -> torch.device:
+    """The :class:`torch.device` a device string names, checked against this torch and machine.
+
+    Args:
+        spec: ``"auto"`` (the first CUDA device when torch sees one, else the CPU), ``"cpu"``, ``"cuda"``
+            (device 0), ``"cuda:N"``, a :class:`torch.device`, or None (= auto).
+    Raises:
+        BadInputError: the string is not a device; CUDA was asked for and this torch has no CUDA (a CPU build)
+            or sees no GPU; the index is not one of this machine's GPUs.
+    """
+    if spec is None:
+        spec = "auto"
+    text = str(spec).strip().lower()
+    match = _PATTERN.match(text)
+    if match is None or (match.group(1) != "cuda" and match.group(2) is not None):
+        raise BadInputError(f"device {str(spec)!r} is not a device; use {DEVICE_CHOICES}")
+    kind, index = match.group(1), match.group(2)
+    if kind == "auto":
+        return torch.device("cuda", 0) if torch.cuda.is_available() else torch.device("cpu")
+    if kind == "cpu":
+        return torch.device("cpu")
+    if not torch.cuda.is_available():
+        why = ("this torch is a CPU build" if torch.version.cuda is None
+               else f"torch {torch.__version__} (CUDA {torch.version.cuda}) sees no GPU on this machine")
+        raise BadInputError(f"device {text!r}: {why}; install a CUDA build of torch into .venv (see the README, "
+                            f"'On a GPU') or use --device cpu")
+    count = torch.cuda.device_count()
+    i = int(index or 0)
+    if i >= count:
+        raise BadInputError(f"device {text!r} does not exist: this machine has {count} CUDA device"
+                            f"{'s' if count != 1 else ''} (cuda:0{f' .. cuda:{count - 1}' if count > 1 else ''})")
+    return torch.device("cuda", i)
+
+
+def synchronize(device: torch.device | str | None) -> None:
+    """Wait for the work queued on ``device`` (a no-op on the CPU): call it before reading a clock."""
+    if device is not None and torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def free_bytes(device: torch.device | str | None) -> int | None:
+    """Free memory on a CUDA device in bytes (``torch.cuda.mem_get_info``), None on the CPU."""
+    if device is None or torch.device(device).type != "cuda":
+        return None
+    free, _total = torch.cuda.mem_get_info(device)
+    return int(free)
+
+
+def chunk_for_memory(default: int, bytes_per_item: int, device: torch.device | str | None,
+                     share: float = 0.25, free: int | None = None) -> int:
+    """How many items to process at once: ``default`` on the CPU; on a GPU at most ``share`` of its free memory
+    (``free`` overrides the measured free bytes) divided by ``bytes_per_item``, at least 1024 and at most 8x
+    ``default``. Chunking is what keeps GPU memory bounded at any resolution."""
+    free = free if free is not None else free_bytes(device)
+    if free is None:
+        return int(default)
+    fits = int(free * share) // max(1, int(bytes_per_item))
+    return int(max(1024, min(8 * int(default), fits)))
+
+
+def describe(device: torch.device | str) -> str:
+    """The device in the report's words: ``"GPU: NVIDIA H100 80GB HBM3 (cuda:0), torch 2.x, CUDA 12.x"`` or
+    ``"CPU: <model name> (N threads), torch 2.x"``."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        index = device.index or 0
+        return (f"GPU: {torch.cuda.get_device_name(index)} (cuda:{index}), torch {torch.__version__}, "
+                f"CUDA {torch.version.cuda}")
+    return f"CPU: {cpu_name()} ({torch.get_num_threads()} threads), torch {torch.__version__}"
+
+
+def cpu_name() -> str:
+    """The processor's model name (``/proc/cpuinfo``), or what ``platform`` knows."""
+    import platform
+    from pathlib import Path
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def move_field(field: Any, device: torch.device) -> Any:
+    """Put a field's parameters and tensors on ``device``, in place; returns the field.
+
+    A field with its own ``to(device)`` (a ``torch.nn.Module``, the NeuS adapters) is moved by it; otherwise
+    every tensor, module and nested plain object among its attributes is moved (synthetic fields hold their
+    tables as plain tensors). :data:`HOST_ATTRIBUTES` (``aabb``, ``background_color``, ``cameras``) stay
+    where they are: metadata every stage reads on the host. Nothing is done on the CPU when the field
+    is already there, so a CPU run is exactly today's.
+    """
+    device = torch.device(device)
+    if device.type == "cpu" and not _has_tensor_off(field, device):
+        return field
+    aabb = getattr(field, "aabb", None)
+    mover = getattr(field, "to", None)
+    if callable(mover):
+        moved = mover(device)
+        field = moved if moved is not None else field
+    else:
+        _move_attributes(field, device, seen=set())
+    if isinstance(aabb, torch.Tensor):
+        try:
+            field.aabb = aabb.cpu()
+        except AttributeError:          # a read-only property: the field computes it
+            pass
+    return field
+
+
+def _move_attributes(obj: Any, device: torch.device, seen: set) -> None:
+    if id(obj) in seen or not hasattr(obj, "__dict__"):
+        return
+    seen.add(id(obj))
+    for name, value in list(vars(obj).items()):
+        if name in HOST_ATTRIBUTES:
+            continue
+        if isinstance(value, (torch.Tensor, torch.nn.Module)):
+            setattr(obj, name, value.to(device))
+        elif isinstance(value, (list, tuple)) and any(isinstance(v, torch.Tensor) for v in value):
+            setattr(obj, name, type(value)(v.to(device) if isinstance(v, torch.Tensor) else v for v in value))
+        elif _ours(value):
+            _move_attributes(value, device, seen)
+
+
+def _has_tensor_off(obj: Any, device: torch.device) -> bool:
+    """Whether any tensor among ``obj``'s parameters, buffers or attributes is on another device type."""
+    if isinstance(obj, torch.nn.Module):
+        return any(t.device.type != device.type for t in (*obj.parameters(), *obj.buffers()))
+    values = vars(obj).values() if hasattr(obj, "__dict__") else ()
+    return any(isinstance(v, torch.Tensor) and v.device.type != device.type for v in values)
+
+
+def out_of_memory_message(device: torch.device | str, stage: str | None = None) -> str:
+    """One line for a GPU that ran out of memory: where, how much was free, what to change."""
+    free = free_bytes(device)
+    where = f" during {stage}" if stage else ""
+    have = f" ({free / 2**30:.1f} GiB free now)" if free is not None else ""
+    return (f"the GPU ran out of memory{where}{have}; close other GPU programs, lower --eval-width or the "
+            f"training batch (train.batch_patches in a --config file), or run with --device cpu; the finished "
+            f"stages are kept and the same command reuses them")
+
+
+def field_device(field: Any) -> torch.device:
+    """The device a field computes on: that of its first parameter, buffer or tensor attribute (the CPU when it
+    holds none, e.g. an analytic field)."""
+    if isinstance(field, torch.nn.Module):
+        for t in (*field.parameters(), *field.buffers()):
+            return t.device
+    for name, value in (vars(field).items() if hasattr(field, "__dict__") else ()):
+        if name not in HOST_ATTRIBUTES and isinstance(value, torch.Tensor):
+            return value.device
+        if isinstance(value, torch.nn.Module) or _ours(value):
+            found = field_device(value)
+            if found.type != "cpu":
+                return found
+    return torch.device("cpu")
+
+
+def _ours(value: Any) -> bool:
+    """Whether ``value`` is a plain object of this package or its adapters (a field's frame, a wrapped field)."""
+    return hasattr(value, "__dict__") and not isinstance(value, type) and \
+        type(value).__module__.split(".")[0] in ("neuras_distill", "adapters")
+
+
+class DeviceField:
+    """A field computing on ``device`` for callers on any device: what every stage of a GPU run holds.
+
+    The wrapped field's tensors are moved there once (:func:`move_field`); ``geometry``, ``radiance`` and
+    ``background`` move their inputs to the device, run with ``device`` as torch's default device (so constants a
+    field builds per call, ``torch.tensor([...])``, land there too) and return on the caller's device: the
+    renderer's device tensors stay on the device, a host caller (a probe, the skybox's background check) gets
+    host tensors. Every other member is the wrapped field's. On the CPU no wrapper is used (:func:`on_device`).
+    """
+
+    def __init__(self, field: Any, device: torch.device):
+        self.__dict__["_field"] = move_field(field, device)
+        self.__dict__["device"] = torch.device(device)
+
+    def __getattr__(self, name: str) -> Any:
+        value = getattr(self.__dict__["_field"], name)
+        if name == "background" and callable(value):
+            return lambda d: self._call(value, d)
+        return value
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self.__dict__["_field"], name, value)
+
+    def __repr__(self) -> str:
+        return f"{self._field!r} on {self.device}"
+
+    @property
+    def wrapped(self) -> Any:
+        """The field itself (its tensors on ``device``)."""
+        return self._field
+
+    def geometry(self, x: torch.Tensor) -> torch.Tensor:
+        """As the field's: x (N, 3) world points -> (N,), on x's device."""
+        return self._call(self._field.geometry, x)
+
+    def radiance(self, x: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        """As the field's: x, d (N, 3) -> (N, 3) colour, on x's device."""
+        return self._call(self._field.radiance, x, d)
+
+    def _call(self, fn, *tensors: torch.Tensor) -> torch.Tensor:
+        back = tensors[0].device
+        with torch.device(self.device):
+            out = fn(*(t.to(self.device) for t in tensors))
+        return out.to(back)
+
+
+def on_device(field: Any, device: torch.device) -> Any:
+    """The field to run the stages with: the field itself on the CPU (nothing changes), else a
+    :class:`DeviceField` on ``device``."""
+    device = torch.device(device)
+    if device.type == "cpu":
+        return field
+    return DeviceField(field, device)
