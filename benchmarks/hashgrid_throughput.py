@@ -36,18 +36,9 @@ from neuras_distill.components.tcnn import (
     ngp_per_level_scale,
     sh_encode_deg4,
 )
+from neuras_distill.device import cpu_name
 
 CONFIGS = {"L16 F2 T19": (16, 2), "L8 F4 T19": (8, 4)}
-
-
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _time(fn, x, d, device: torch.device, repeats: int) -> float:
@@ -190,14 +181,14 @@ def main() -> None:
     else:
         devices = [resolve_device(args.device)]
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads (interop "
-          f"{torch.get_num_interop_threads()}), {os.cpu_count()} CPUs: {_cpu_name()}", flush=True)
+          f"{torch.get_num_interop_threads()}), {os.cpu_count()} CPUs: {cpu_name()}", flush=True)
     results = []
     for dev in devices:
         results += run(dev, args.points, args.repeats, args.chunk)
         results += run_neus(dev, args.points, args.repeats)
     summary = {
         "benchmark": "hashgrid_throughput", "torch": torch.__version__, "threads": torch.get_num_threads(),
-        "cpu_count": os.cpu_count(), "cpu": _cpu_name(), "python": platform.python_version(),
+        "cpu_count": os.cpu_count(), "cpu": cpu_name(), "python": platform.python_version(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
         "load_average": os.getloadavg() if hasattr(os, "getloadavg") else None, "results": results,
     }

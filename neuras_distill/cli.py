@@ -66,6 +66,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="training image whose appearance latent is rendered (default 0, as instant-ngp), or 'mean'")
     _add_run_options(p)
 
+    p = sub.add_parser("from-nerfstudio", help="a nerfstudio nerfacto run (config.yml) through the whole pipeline")
+    p.add_argument("run", help="the run's config.yml or its folder (outputs/<scene>/nerfacto/<timestamp>)")
+    p.add_argument("--cameras", default=None,
+                   help="the dataset's transforms.json (nerfstudio stores no cameras; default: an orbit around "
+                        "the foreground box)")
+    p.add_argument("--foreground-box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="box in the dataset's frame holding the foreground (default: where the density is)")
+    p.add_argument("--appearance", default="mean",
+                   help="appearance embedding: mean (nerfstudio's evaluation, default), zeros, or a training "
+                        "image's index")
+    _add_run_options(p)
+
     p = sub.add_parser("from-sdf", help="a NeuS / hash-grid NeuS checkpoint (.pth / .ckpt) through the pipeline")
     p.add_argument("checkpoint", help="NeuS ckpt_XXXXXX.pth or instant-nsr-pl .ckpt")
     p.add_argument("--cameras", default=None,
@@ -224,9 +236,20 @@ def _sdf_inputs(args) -> tuple:
     return _checkpoint_inputs(args, args.checkpoint, "neus", options)
 
 
+def _nerfstudio_inputs(args) -> tuple:
+    from pathlib import Path
+
+    run = Path(args.run)
+    options: dict = {"appearance": args.appearance if args.appearance in ("mean", "zeros")
+                     else _int(args.appearance, "--appearance")}
+    if args.foreground_box is not None:
+        options["foreground_box"] = _parse_box(args.foreground_box)
+    return _checkpoint_inputs(args, str(run / "config.yml" if run.is_dir() else run), "nerfstudio", options)
+
+
 #: The commands that run the pipeline, and how each builds its (field, cameras or None, config).
 RUN_COMMANDS = {"demo": lambda a: _scene_inputs(a, DEFAULT_SCENE), "from-synthetic": lambda a: _scene_inputs(a, a.name),
-                "from-ngp": _ngp_inputs, "from-sdf": _sdf_inputs}
+                "from-ngp": _ngp_inputs, "from-sdf": _sdf_inputs, "from-nerfstudio": _nerfstudio_inputs}
 
 
 def run_inputs(args) -> tuple:
@@ -239,6 +262,10 @@ def _default_out(args) -> Path:
     if args.command in ("demo", "from-synthetic"):
         name = DEFAULT_SCENE if args.command == "demo" else args.name
         return Path(f"runs/{name}" + ("" if args.kind in (None, "sdf") else f"-{args.kind}"))
+    if args.command == "from-nerfstudio":
+        run = Path(args.run).resolve()
+        folder = run if run.is_dir() else run.parent              # outputs/<scene>/<method>/<timestamp>
+        return Path(f"runs/{folder.parent.parent.name or folder.name or 'nerfstudio'}-{folder.parent.name}")
     return Path(f"runs/{Path(args.snapshot if args.command == 'from-ngp' else args.checkpoint).stem or 'field'}")
 
 

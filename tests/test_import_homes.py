@@ -24,7 +24,7 @@ HOMES = {
     "flip_evaluator": "neuras_distill/flip_metric.py",
     "matplotlib": "neuras_distill/pipeline/report.py",
     "msgpack": "adapters/instant_ngp/snapshot.py",
-    "yaml": "adapters/neus/nsr_config.py",
+    "yaml": "adapters/yaml_text.py",
 }
 
 

@@ -60,15 +60,9 @@ def read_nsr_config(config) -> dict:
     try:
         data = json.loads(text)
     except json.JSONDecodeError:
-        try:
-            import yaml  # optional: only needed for YAML configs
-        except ImportError:
-            raise BadInputError(f"config {path} is YAML; reading it needs PyYAML (pip install pyyaml), "
-                                "or pass the config as JSON") from None
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise BadInputError(f"config {path} is not valid YAML: {str(exc).splitlines()[0]}") from None
+        from ..yaml_text import load_yaml
+
+        data = load_yaml(text, f"config {path}")
     require(isinstance(data, dict), f"config {path} does not hold a mapping (got {type(data).__name__})")
     return data
 

@@ -103,13 +103,45 @@ def inspect_torch_zip(path) -> tuple[list[str], bytes]:
         return [i.filename for i in zf.infolist()], zf.read(pkl)
 
 
-def load_torch_checkpoint(path) -> dict:
+#: Pickle globals a checkpoint may hold besides tensors and containers when the caller allows numpy scalars
+#: (nerfstudio's learning-rate scheduler leaves ``numpy.float64`` learning rates in the optimizer state): the
+#: name the pickle uses -> the object it stands for. Nothing outside this table is ever imported.
+NUMPY_SCALAR_GLOBALS = ("numpy.core.multiarray.scalar", "numpy._core.multiarray.scalar", "numpy.dtype",
+                        "numpy.dtypes.Float64DType", "numpy.dtypes.Float32DType", "numpy.dtypes.Int64DType",
+                        "_codecs.encode")
+
+
+def _numpy_scalar_global(name: str):
+    import codecs
+
+    import numpy as np
+
+    if name.endswith("multiarray.scalar"):
+        core = getattr(np, "_core", None) or np.core
+        return core.multiarray.scalar
+    if name == "numpy.dtype":
+        return np.dtype
+    if name == "_codecs.encode":
+        return codecs.encode
+    return getattr(np.dtypes, name.rsplit(".", 1)[-1])
+
+
+def _resolves(name: str) -> bool:
+    try:
+        _numpy_scalar_global(name)
+        return True
+    except AttributeError:
+        return False
+
+
+def load_torch_checkpoint(path, *, numpy_scalars: bool = False) -> dict:
     """Load a ``torch.save`` checkpoint safely: weights only, onto the CPU.
 
     Returns the top-level dict. Raises :class:`BadInputError` (one line: what is wrong, what to do) for a
     missing path, a directory, an empty, truncated or foreign file, the legacy or TorchScript formats, a
     top level that is not a dict, and pickles that need more than tensors and plain containers (those are
-    never executed).
+    never executed). ``numpy_scalars``: also allow the numpy scalar and dtype globals of
+    :data:`NUMPY_SCALAR_GLOBALS` (the file's globals are listed first; any other one is refused by name).
     """
     path, size = _check_path(path)
     head = _read_head(path, 16)
@@ -121,8 +153,21 @@ def load_torch_checkpoint(path) -> dict:
                             "give the .pth/.ckpt file written by torch.save")
     zf, _ = _zip_members(path, size)
     zf.close()
+    allowed = []
+    if numpy_scalars:
+        try:
+            found = torch.serialization.get_unsafe_globals_in_checkpoint(path)
+        except Exception as exc:  # noqa: BLE001 - a file whose pickle cannot even be listed is damaged
+            raise BadInputError(_describe_load_error(path, exc)) from None
+        other = [g for g in found if g not in NUMPY_SCALAR_GLOBALS]
+        if other:
+            raise BadInputError(f"{path} needs more than tensors, numbers and numpy scalars (found {other[0]}); "
+                                "it was not loaded, because loading it would run code from the file")
+        # all of the table (the dtype classes are reached through numpy.dtype and are not listed on their own)
+        allowed = [(_numpy_scalar_global(g), g) for g in NUMPY_SCALAR_GLOBALS if _resolves(g)]
     try:
-        obj = torch.load(path, weights_only=True, map_location="cpu")
+        with torch.serialization.safe_globals(allowed):
+            obj = torch.load(path, weights_only=True, map_location="cpu")
     except Exception as exc:  # noqa: BLE001 - every failure of a foreign file is the user's input problem
         raise BadInputError(_describe_load_error(path, exc)) from None
     if not isinstance(obj, dict):

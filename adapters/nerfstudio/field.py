@@ -1,0 +1,132 @@
+"""A nerfstudio nerfacto run as a neuras-distill density field, in the user's data frame.
+
+This module owns :class:`NerfstudioField` (the Field contract, DESIGN.md §2): :class:`.nerfacto.NerfactoNetwork`
+evaluated through the dataparser's transform, so the field, its box and the cameras are in the frame of the
+dataset's ``transforms.json`` (metric when the capture was): ``x_ns = scale * (R x + t)`` with ``[R | t]`` and
+``scale`` from ``dataparser_transforms.json``, directions ``d_ns = R d``, density ``sigma = scale * sigma_ns`` per
+data-frame unit. Without that file the field stays in nerfstudio's frame (``frame`` says which).
+
+Foreground box: where the density exceeds :data:`BOX_DENSITY` (per nerfstudio unit) on a grid over the scene box
+[-1, 1]^3 (nerfstudio's frame), grown by one cell; ``--foreground-box`` overrides it. Density that touches the
+scene box's faces means content beyond it (the contracted region): ``unbounded``, the skybox path.
+
+Background: config.yml's ``background_color``: ``white`` / ``black`` are constants; ``random`` renders as black in
+nerfstudio's evaluation (no background is blended); ``last_sample`` (nerfacto's default) is the colour of the last
+sample at the far plane: :meth:`NerfstudioField.background` evaluates the field at ``far_plane`` along each
+direction from the scene box's centre.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from neuras_distill.errors import require
+
+from .nerfacto import NerfactoNetwork
+from .run import NerfactoSettings, NerfstudioRun
+
+#: Density (per nerfstudio unit) above which a grid cell belongs to the foreground box.
+BOX_DENSITY = 1.0
+_BOX_GRID = 96
+
+
+class NerfstudioField:
+    """Field members: ``kind = "density"``, ``aabb`` (2, 3) data frame, ``geometry``, ``radiance``,
+    ``background_color`` or ``background``, ``unbounded``, ``default_cameras``, plus
+    ``frame`` ("data" or "nerfstudio"), ``settings``, ``notes``."""
+
+    kind = "density"
+
+    def __init__(self, run: NerfstudioRun, network: NerfactoNetwork, settings: NerfactoSettings, *,
+                 foreground_box=None):
+        self.network = network
+        self.settings = settings
+        self.notes = list(settings.notes)
+        if run.dataparser is not None:
+            self.frame = "data"
+            t = torch.as_tensor(run.dataparser["transform"], dtype=torch.float64)
+            self.scale = float(run.dataparser["scale"])
+        else:
+            self.frame = "nerfstudio"
+            t = torch.cat([torch.eye(3, dtype=torch.float64), torch.zeros(3, 1, dtype=torch.float64)], dim=1)
+            self.scale = 1.0
+            self.notes.append("no dataparser_transforms.json: the field is in nerfstudio's frame (not the "
+                              "dataset's, not metric)")
+        self.rotation = t[:, :3].float()
+        self.translation = t[:, 3].float()
+        self._rotation64, self._translation64 = t[:, :3], t[:, 3]
+        if foreground_box is not None:
+            box = torch.as_tensor(foreground_box, dtype=torch.float64).reshape(2, 3)
+            require(bool((box[1] > box[0]).all()), f"--foreground-box: min must be below max on every axis, got "
+                                                   f"{box.tolist()}")
+            self.aabb, self.unbounded = box.float(), True
+            self.foreground_reason = "--foreground-box"
+        else:
+            self.aabb, self.unbounded, self.foreground_reason = self._foreground()
+        background = settings.background_color
+        if background in ("white", "black", "random"):
+            self.background_color = torch.full((3,), 1.0 if background == "white" else 0.0)
+        else:
+            self.background = self._last_sample_background
+
+    # ------------------------------------------------------------------ frames
+    def to_nerfstudio(self, x: torch.Tensor) -> torch.Tensor:
+        """Data-frame points (N, 3) -> nerfstudio-frame points."""
+        return self.scale * (x.float() @ self.rotation.to(x.device).T + self.translation.to(x.device))
+
+    def from_nerfstudio_box(self, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
+        """The data-frame axis-aligned box (2, 3) around a nerfstudio-frame box's 8 corners (float64 math)."""
+        corners = torch.tensor([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], dtype=torch.float64)
+        pts = lo.double() + corners * (hi.double() - lo.double())
+        world = (pts / self.scale - self._translation64) @ self._rotation64
+        return torch.stack([world.min(0).values, world.max(0).values])
+
+    # ------------------------------------------------------------------ Field contract
+    def geometry(self, x: torch.Tensor) -> torch.Tensor:
+        """x (N, 3) data frame -> density (N,) per data-frame unit."""
+        return self.scale * self.network.density(self.to_nerfstudio(x))
+
+    def radiance(self, x: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+        """x (N, 3), d (N, 3) unit directions of travel (data frame) -> (N, 3) colour in [0, 1]."""
+        d_ns = d.float() @ self.rotation.to(d.device).T
+        return self.network.rgb(self.to_nerfstudio(x), d_ns)
+
+    def _last_sample_background(self, d: torch.Tensor) -> torch.Tensor:
+        """(N, 3) colour of the last sample (at the far plane) along data-frame directions d from the scene
+        box's centre: what nerfstudio blends behind each ray with ``background_color: last_sample``."""
+        d_ns = torch.nn.functional.normalize(d.float() @ self.rotation.to(d.device).T, dim=-1)
+        centre = self.network.scene_box.mean(0).to(d.device)
+        far = centre + self.settings.far_plane * d_ns
+        return self.network.rgb(far, d_ns)
+
+    def default_cameras(self, n: int, width: int = 512, height: int = 512, *, held_out_every: int = 12):
+        """An orbit framing the foreground box (the run stores no cameras: pass ``--cameras`` for the
+        dataset's)."""
+        from neuras_distill.scenes.analytic import orbit_framing
+
+        return orbit_framing(self.aabb, n, width, height)
+
+    # ------------------------------------------------------------------ foreground
+    @torch.no_grad()
+    def _foreground(self) -> tuple[torch.Tensor, bool, str]:
+        r = _BOX_GRID
+        axis = (torch.arange(r, dtype=torch.float32) + 0.5) / r * 2.0 - 1.0
+        grid = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
+        sigma = torch.cat([self.network.density(grid[i:i + 2**16]) for i in range(0, grid.shape[0], 2**16)])
+        occupied = (sigma > BOX_DENSITY).reshape(r, r, r)
+        require(bool(occupied.any()), "the nerfstudio field has no density above "
+                                      f"{BOX_DENSITY} anywhere in its scene box: an untrained or empty run")
+        idx = torch.nonzero(occupied)
+        cell = 2.0 / r
+        lo = (-1.0 + (idx.min(0).values - 1).clamp(min=0) * cell)
+        hi = (-1.0 + (idx.max(0).values + 2).clamp(max=r) * cell)
+        touches = bool((idx.min(0).values == 0).any() or (idx.max(0).values == r - 1).any())
+        reason = (f"density above {BOX_DENSITY} per nerfstudio unit on a {r}^3 grid over the scene box"
+                  + ("; it reaches the box's faces: content beyond goes to the skyboxes" if touches else ""))
+        return self.from_nerfstudio_box(lo, hi).float(), touches, reason
+
+    def __repr__(self) -> str:
+        s = self.settings
+        return (f"NerfstudioField({s.method}, {s.implementation} layout, L{s.num_levels} F{s.features_per_level} "
+                f"T2^{s.log2_hashmap_size}, frame={self.frame}, scale={self.scale:.4g}, aabb={self.aabb.tolist()})")
+
