@@ -84,15 +84,16 @@ def free_bytes(device: torch.device | str | None) -> int | None:
 
 
 def chunk_for_memory(default: int, bytes_per_item: int, device: torch.device | str | None,
-                     share: float = 0.25, free: int | None = None) -> int:
+                     share: float = 0.25, free: int | None = None, max_items: int | None = None) -> int:
     """How many items to process at once: ``default`` on the CPU; on a GPU at most ``share`` of its free memory
-    (``free`` overrides the measured free bytes) divided by ``bytes_per_item``, at least 1024 and at most 8x
-    ``default``. Chunking is what keeps GPU memory bounded at any resolution."""
+    (``free`` overrides the measured free bytes) divided by ``bytes_per_item``, at least 1024 and at most
+    ``max_items`` (default 8x ``default``). Chunking is what keeps GPU memory bounded at any resolution."""
     free = free if free is not None else free_bytes(device)
     if free is None:
         return int(default)
     fits = int(free * share) // max(1, int(bytes_per_item))
-    return int(max(1024, min(8 * int(default), fits)))
+    cap = 8 * int(default) if max_items is None else int(max_items)
+    return int(max(1024, min(cap, fits)))
 
 
 def describe(device: torch.device | str) -> str:

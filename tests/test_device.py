@@ -78,6 +78,7 @@ def test_chunks_follow_free_gpu_memory():
     assert chunk_for_memory(32768, 5120, "cuda", free=2 * 2**30) == 2 * 2**30 // 4 // 5120
     assert chunk_for_memory(32768, 5120, "cuda", free=2**20) == 1024            # at least 1024 rays
     assert chunk_for_memory(32768, 16, "cuda", free=80 * 2**30) == 8 * 32768    # at most 8x the default
+    assert chunk_for_memory(2**14, 3200, "cuda", free=80 * 2**30, max_items=2**21) == 2**21  # the hash grid's cap
 
 
 @pytest.mark.parametrize("name, kind", [("sphere", "sdf"), ("torus", "density"), ("gradient-ball", None)])
@@ -125,3 +126,14 @@ def test_the_report_names_each_side_and_flags_software_gl_beside_a_gpu(monkeypat
     assert ("bundle_note" in info) == torch.cuda.is_available()
     assert software_gl("llvmpipe (LLVM 15)") and software_gl("Google SwiftShader")
     assert not software_gl("NVIDIA H100 80GB HBM3/PCIe/SSE2")
+
+
+def test_training_plan_floor_and_probe_follow_the_training_device():
+    """On a GPU the volume rendering share shrinks to nothing: the automatic budget keeps a larger floor there,
+    and the speed probe trains where the run trains (it measured the host's speed before)."""
+    from neuras_distill.pipeline import decisions
+    assert decisions.training_time_budget(1.0, 10**6, 10**6) == decisions.TRAIN_FLOOR_S
+    assert decisions.training_time_budget(1.0, 10**6, 10**6, floor_s=decisions.GPU_TRAIN_FLOOR_S) == 60.0
+    assert decisions.training_time_budget(100.0, 10**6, 10**6) == pytest.approx(0.5 * 200.0)  # the share wins
+    speed = decisions.probe_training_speed(4, 8, 2, 4, 8, steps=5, side=32, device="cpu")
+    assert speed > 0

@@ -427,7 +427,7 @@ class StreetField:
 
     def _normal_local(self, p: torch.Tensor, h: float = 0.01) -> torch.Tensor:
         """(N, 3) unit normals at local points from a 4-point tetrahedral difference of the SDF."""
-        k = self._TETRA
+        k = self._TETRA.to(p.device)   # a class constant: on the host until moved here
         f = self._scene((p[:, None, :] + h * k).reshape(-1, 3)).reshape(-1, 4, 1)
         return F.normalize((f * k).sum(1), dim=-1, eps=1e-12)
 

@@ -76,12 +76,14 @@ def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -
     curve = (2 * cfg.teacher.num_steps + sum(cfg.eval.runtime_steps) + cfg.teacher.num_steps) / cfg.teacher.num_steps
     shifts = 2 * len(getattr(ctx.field, "lane_shifts", None) or [])
     eval_pixels = int((len(test) + curve + shifts) * test.width * test.height)
+    floor = decisions.GPU_TRAIN_FLOOR_S if ctx.device.type == "cuda" else decisions.TRAIN_FLOOR_S
     budget = tr.time_budget_s or decisions.training_time_budget(teacher_seconds, len(train) * train.width * train.height,
-                                                                 eval_pixels)
+                                                                 eval_pixels, floor_s=floor)
     if tr.steps:                   # configured steps run to the end unless a time budget is configured too
         return TrainingPlan(time_budget_s=tr.time_budget_s or None, samples_per_step=samples_per_step,
                             steps_per_second=None, configured_steps=tr.steps, max_steps=tr.steps)
     t = cfg.texture
-    speed = decisions.probe_training_speed(t.feature_dim, t.hidden, t.num_layers, tr.batch_patches, tr.patch)
+    speed = decisions.probe_training_speed(t.feature_dim, t.hidden, t.num_layers, tr.batch_patches, tr.patch,
+                                           device=ctx.device)
     return TrainingPlan(time_budget_s=float(budget), samples_per_step=samples_per_step, steps_per_second=speed,
                         configured_steps=None, max_steps=max(decisions.MIN_TRAIN_STEPS, int(budget * speed)))
