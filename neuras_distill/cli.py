@@ -35,6 +35,9 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
     p.add_argument("--device", default="auto", metavar="DEVICE",
                    help="where the field, the teacher and training compute: auto (a GPU when torch sees one), "
                         "cpu, cuda or cuda:N (default auto; the bundle is played by OpenGL)")
+    p.add_argument("--nproc", default=1, metavar="N",
+                   help="processes that share the teacher's volume rendering on the CPU (default 1: this one "
+                        "alone; N spawns N-1 workers that each hold a copy of the field)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
@@ -276,13 +279,16 @@ def _distill_command(args) -> int:
     from .pipeline.run import distill
 
     from .device import resolve_device
+    from .parallel import check_nproc
 
     out = Path(args.out) if args.out else _default_out(args)
     check_output_folder(out.resolve())  # fail before any work
     resolve_device(args.device)
+    check_nproc(args.nproc)              # before any work: a bad --nproc is one line, nothing written
     field, cameras, cfg = run_inputs(args)
     distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
-            fresh=args.fresh, keep_work=args.keep_work, source=_source(args), device=args.device)
+            fresh=args.fresh, keep_work=args.keep_work, source=_source(args), device=args.device,
+            nproc=args.nproc)
     return 0
 
 

@@ -48,6 +48,7 @@ def test_from_ngp_on_the_trained_snapshot(tmp_path):
     rep, out = _run(tmp_path, ["from-ngp", str(DATA / "ngp" / "bunny.ingp")])
     # the snapshot stores 48 training cameras (192x108); every 12th is held out
     assert rep["views"]["test"] == 4 and rep["resolution"] == [128, 72]
+    assert rep["views"]["cameras"] == "the field's own"        # the snapshot's stored cameras
     assert rep["psnr"] > 20.0, rep["psnr_per_view"]  # tiny settings; full size: 30+ dB (README)
     assert rep["parity_psnr"] > 40.0
     assert any(item["component"] == "skyboxes" for item in rep["left_out"])
@@ -65,6 +66,6 @@ def test_from_ngp_on_the_trained_snapshot(tmp_path):
 def test_from_sdf_on_the_trained_neus_checkpoint(tmp_path):
     rep, out = _run(tmp_path, ["from-sdf", str(DATA / "sdf" / "neus_bunny.pth"),
                                "--cameras", str(DATA / "sdf" / "cameras_sphere.npz"), "--image-size", "400x400"])
-    assert rep["views"]["test"] == 4
+    assert rep["views"]["test"] == 4 and rep["views"]["cameras"] == "the field's own"
     assert rep["psnr"] > 20.0, rep["psnr_per_view"]
     assert rep["parity_psnr"] > 40.0

@@ -55,7 +55,8 @@ class DistillResult:
 
 def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig | dict | None = None,
             out: str | Path | None = None, *, log=None, progress: bool = True, fresh: bool = False,
-            keep_work: bool = True, source: dict | None = None, reuse_from=(), device="auto") -> DistillResult:
+            keep_work: bool = True, source: dict | None = None, reuse_from=(), device="auto",
+            nproc: int = 1) -> DistillResult:
     """Distill ``field`` into a bundle that OpenGL plays, and measure it against the field.
 
     Args:
@@ -77,6 +78,8 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
         device: where the field, the teacher, the held-out field renders and training compute: ``"auto"``
             (the first GPU when torch sees one, else the CPU), ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or a
             :class:`torch.device`. A field's tensors are moved there in place. The bundle is played by OpenGL.
+        nproc: processes that share the teacher's volume rendering (this one and ``nproc - 1`` spawned
+            workers, ``neuras_distill.parallel``; CPU only); 1: none are spawned.
     Returns:
         DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``.
     Raises:
@@ -85,7 +88,12 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
     from ..device import resolve_device
     from ..fields.base import check_field
 
+    from ..parallel import check_nproc
+
     device = resolve_device(device)
+    nproc = check_nproc(nproc)
+    require(nproc == 1 or device.type == "cpu",
+            f"--nproc {nproc} shares volume rendering between CPU processes; on {device} use --nproc 1")
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     if config is None:
         cfg = DistillConfig().validate()
@@ -95,13 +103,35 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
         cfg = config.validate()
     check_field(field)
     source = source or {"python": f"{type(field).__module__}.{type(field).__qualname__}"}
-    cameras = _pick_cameras(field, cameras, cfg)
+    cameras, camera_origin = _pick_cameras(field, cameras, cfg)
+    if camera_origin.startswith("generated"):
+        log(f"cameras: {camera_origin}")
     stability = _check_stability(field, cameras, cfg, log)
     torch.manual_seed(cfg.train.seed)
     np.random.seed(cfg.train.seed)
 
+    with _render_pool(field, nproc) as pool:
+        return _run_into(out, field, cameras, cfg, log, progress, stability, source, device, camera_origin,
+                         fresh, keep_work, reuse_from, pool)
+
+
+def _render_pool(field, nproc: int):
+    """A :class:`~neuras_distill.parallel.RenderPool` for ``nproc`` > 1, else a context holding None."""
+    import contextlib
+
+    if nproc == 1:
+        return contextlib.nullcontext(None)
+    from ..parallel import RenderPool
+
+    return RenderPool(field, nproc)
+
+
+def _run_into(out, field, cameras, cfg, log, progress, stability, source, device, camera_origin, fresh, keep_work,
+              reuse_from, pool) -> DistillResult:
+    """:func:`_run` without a folder (``out`` None) or into a :class:`RunFolder` (resumable)."""
     if out is None:
-        return _run(field, cameras, cfg, None, log, progress, stability, source=source, device=device)
+        return _run(field, cameras, cfg, None, log, progress, stability, source=source, device=device,
+                    camera_origin=camera_origin, pool=pool)
     folder = RunFolder(out, keep_work=keep_work)
     with folder as tmp:
         if folder.resumed_folder:
@@ -111,7 +141,7 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
         cache = StageCache(folder.work, [folder.previous_work, *map(Path, reuse_from)], fresh=fresh, log=log)
         try:
             result = _run(field, cameras, cfg, tmp, log, progress, stability, cache=cache, keep_work=keep_work,
-                          source=source, device=device)
+                          source=source, device=device, camera_origin=camera_origin, pool=pool)
         except BaseException:
             if folder.work.is_dir() and any(folder.work.glob("*/*/done.json")):
                 log(f"finished stages are kept in {tmp}; the same command reuses them (--fresh ignores them)")
@@ -153,9 +183,13 @@ def _check_stability(field: Field, cameras: Cameras, cfg: DistillConfig, log) ->
     return result
 
 
-def _pick_cameras(field: Field, cameras, cfg: DistillConfig) -> Cameras:
+def _pick_cameras(field: Field, cameras, cfg: DistillConfig) -> tuple[Cameras, str]:
+    """(cameras, where they came from: ``"given"``, ``"the field's own"`` or ``"generated: ..."`` with the first
+    line of the field's ``default_cameras`` docstring; ``report["views"]["cameras"]``)."""
+    origin = "given"
     if cameras is None:
         cameras = getattr(field, "cameras", None)
+        origin = "the field's own"
     if cameras is None:
         make = getattr(field, "default_cameras", None)
         require(callable(make), "no cameras given and the field brings none; pass cameras "
@@ -165,19 +199,22 @@ def _pick_cameras(field: Field, cameras, cfg: DistillConfig) -> Cameras:
         extra = ({"held_out_every": cfg.cameras.test_every}
                  if "held_out_every" in inspect.signature(make).parameters else {})
         cameras = make(cfg.cameras.num_views, cfg.cameras.width, cfg.cameras.height, **extra)
+        doc = " ".join((inspect.getdoc(make) or "").split("\n\n")[0].split())
+        origin = f"generated by {type(field).__name__}.default_cameras" + (f": {doc}" if doc else "")
     require(isinstance(cameras, Cameras), f"cameras must be an nd.Cameras, got {type(cameras).__name__}")
     require(len(cameras) >= 2, f"need at least 2 cameras (some to train on, some held out), got {len(cameras)}")
-    return cameras
+    return cameras, origin
 
 
 def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool,
          stability: dict | None = None, cache: StageCache | None = None, keep_work: bool = True,
-         source: dict | None = None, device: torch.device = torch.device("cpu")) -> DistillResult:
+         source: dict | None = None, device: torch.device = torch.device("cpu"),
+         camera_origin: str = "given", pool=None) -> DistillResult:
     """The seven stages in order (``pipeline.stages``), then the report."""
     from ..playback.context import gl_info
 
     t_start = time.perf_counter()
-    ctx = RunContext(field, cfg, root, cache, log, progress, device=device)
+    ctx = RunContext(field, cfg, root, cache, log, progress, device=device, pool=pool)
     try:
         views = stages.split_cameras(ctx, cameras)
         teacher, teacher_views, plan = stages.render_teacher(ctx, views)
@@ -191,6 +228,8 @@ def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, 
 
     rep = build_report(ctx, views, geometry, inputs, plan, training, backdrop, distilled, bundle, evaluation,
                        stability=stability, source=source, gl_info=gl_info(), device=device)
+    rep["views"]["cameras"] = camera_origin
+    rep["processes"] = pool.nproc if pool is not None else 1
     rep["resumed"] = {"stages": list(cache.reused) if cache is not None else [],
                       "from_step": distilled.log.get("resumed_from_step")}
     if cache is not None:

@@ -379,6 +379,17 @@ class StreetField:
               for c, h, r in SHELTER]
         return torch.stack(ds, dim=1).min(dim=1)
 
+    def __getstate__(self) -> dict:
+        """Pickled without the objects' closures (``--nproc`` sends the field to worker processes); they are
+        rebuilt from the scene tables on unpickling."""
+        state = dict(self.__dict__)
+        state.pop("_object_list", None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._object_list = self._objects()
+
     def _objects(self):
         """The small objects as (bound, sdf, material): bound (N,) is a lower bound of the object's SDF."""
         objs = [(self._lamp_bound, self._lamps, _MAT_LAMP),

@@ -81,6 +81,8 @@ class RunContext:
         device: where the field, the teacher and training compute (``neuras_distill.device``); on a GPU
             ``field`` is replaced by a :class:`~neuras_distill.device.DeviceField` after the fingerprint (of the
             host field: the same keys on every device) is taken.
+        pool: a :class:`~neuras_distill.parallel.RenderPool` sharing the teacher's renders (``--nproc N``), or
+            None (one process).
     """
 
     field: Field
@@ -93,6 +95,7 @@ class RunContext:
     decisions: Decisions = dataclass_field(default_factory=Decisions)
     keys: dict = dataclass_field(default_factory=dict)
     device: torch.device = dataclass_field(default_factory=lambda: torch.device("cpu"))
+    pool: object = None
 
     def __post_init__(self) -> None:
         if self.clock is None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import require
-from ...geometry.extract import Surface, extract_surface, unwrap_surface
+from ...geometry.extract import SHELL_TEXEL_SCALE, Surface, extract_surface, unwrap_surface
 from .. import choices, decisions
 from ..cache import digest
 from ..stage_results import CameraSplit, GeometryResult, ShaderInputs, TeacherResult, TrainingPlan
@@ -72,11 +72,20 @@ def extract(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, enclose
 
 def choose_atlas_side(ctx: RunContext, surface: Surface, views: CameraSplit, plan: TrainingPlan) -> tuple[int, dict]:
     """(atlas side, texel-density figures): the side at which the training views see about one texel per
-    ``decisions.PIXELS_PER_TEXEL`` pixels of the surface's core (a fringe shell covers the same pixels at a
-    quarter of its texel density), capped by ``texture.max_resolution`` and by what the training plan's samples
-    can fit (``decisions.training_budget_resolution``)."""
-    side, info = decisions.texel_density_resolution(surface.trial.layers()[0], views.train,
-                                                    hi=ctx.cfg.texture.max_resolution)
+    ``decisions.PIXELS_PER_TEXEL`` pixels of the surface's core, or per ``PIXELS_PER_TEXEL / SHELL_TEXEL_SCALE``
+    pixels of its fringe shell (laid out at a quarter of the core's texel density), whichever needs more,
+    capped by ``texture.max_resolution`` and by what the training plan's samples can fit
+    (``decisions.training_budget_resolution``). The shell counts for foggy fields, whose colour sits mostly in
+    the fringe: the nerfstudio fixture's core covered 8,378 training pixels and got a 128² atlas."""
+    layers = surface.trial.layers()
+    hi = ctx.cfg.texture.max_resolution
+    side, info = decisions.texel_density_resolution(layers[0], views.train, hi=hi)
+    if len(layers) > 1:
+        shell_side, shell = decisions.texel_density_resolution(
+            layers[1], views.train, hi=hi, pixels_per_texel=decisions.PIXELS_PER_TEXEL / SHELL_TEXEL_SCALE)
+        info = dict(info, shell_pixels=shell["pixels"], shell_uv_area=shell["uv_area"], shell_exact=shell["exact"])
+        if shell["exact"] > info["exact"]:
+            side, info = shell_side, dict(info, exact=shell["exact"], from_shell=1)
     samples = plan.max_steps * plan.samples_per_step
     budget = decisions.training_budget_resolution(samples, info["uv_area"])
     return min(side, budget), dict(info, chosen=min(side, budget), budget=budget, samples=samples)
@@ -90,7 +99,11 @@ def _record_atlas_side(ctx: RunContext, tex_res: int, density: dict) -> None:
         "texels beyond the training views' detail",
         f"atlas {tex_res}x{tex_res} chosen from texel density: the training views see {density['pixels']:.0f} "
         f"pixels of surface on {100 * density['uv_area']:.1f}% of the atlas, one texel per {ppt:g}x{ppt:g} pixels "
-        f"at {density['exact']:.0f}" + (f" (capped at max_resolution {hi})" if capped else "")
+        f"at {density['exact']:.0f}"
+        + (f" (set by the fringe shell: {density['shell_pixels']:.0f} pixels on "
+           f"{100 * density['shell_uv_area']:.1f}% of the atlas at a quarter of the texel density)"
+           if density.get("from_shell") else "")
+        + (f" (capped at max_resolution {hi})" if capped else "")
         + (f"; limited to {density['budget']} by the training budget ({density['samples']} samples, "
            f"{decisions.SAMPLES_PER_TEXEL} per used texel)" if density["budget"] < density["exact"] else ""),
         side=tex_res, **{k: v for k, v in density.items() if isinstance(v, (int, float))})

@@ -48,7 +48,8 @@ def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer,
 
     def render() -> TeacherResult:
         t0 = time.perf_counter()
-        out = evaluate.render_field_views(teacher, train, ctx.progress_printer("teacher"), depths=True)
+        render_views = ctx.pool.render_views if ctx.pool is not None else evaluate.render_field_views
+        out = render_views(teacher, train, ctx.progress_printer("teacher"), depths=True)
         return TeacherResult(np.stack(out.images).astype(np.float32), np.stack(out.opacities),
                              np.stack(out.surface_depths), np.stack(out.fringe_depths),
                              seconds=time.perf_counter() - t0)

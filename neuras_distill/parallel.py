@@ -1,0 +1,237 @@
+"""Local worker processes that share the field's volume rendering (``--nproc N``; the only torch.distributed user).
+
+Rank 0 is the run itself; ranks 1 .. N-1 are processes it spawns, each holding a copy of the field (sent once,
+pickled by ``torch.multiprocessing``, whose tensors travel through shared memory). A render request is
+broadcast to every rank (the cameras, the renderer's settings and its occupancy grid, so no worker rebuilds it);
+rank ``r`` renders views ``r, r + N, r + 2N, ...`` and the renders are gathered on rank 0 in view order. Every
+rank uses ``cpu_count // N`` torch threads while it renders (2 processes of 1 thread instead of 1 of 2 on this
+machine), rank 0 restores its own count afterwards. The group is gloo over TCP on 127.0.0.1, so the same
+protocol would run across machines under ``torchrun`` once the field can be rebuilt there.
+
+What is split: the teacher's renders of the training views (``stages.teacher``). What is not: the held-out field
+frames (they are timed one at a time, as one process, so the field's FPS stays the fair "before" figure) and
+training (one process; the issue's all-reduce of gradients is not built yet).
+
+Failures: a worker that dies or a collective that waits longer than ``timeout_s`` ends the run with one line
+(:class:`~neuras_distill.errors.BadInputError`, exit 2) that names ``--nproc 1`` as the way round;
+so does a worker that exits while the group forms.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from dataclasses import dataclass
+from datetime import timedelta
+
+import numpy as np
+import torch
+
+from .errors import BadInputError, require
+
+#: Seconds a collective operation may wait for the other ranks before the run gives up (a worker's share of a
+#: large teacher can take many minutes; a worker that dies is noticed at once, its connection closes).
+DEFAULT_TIMEOUT_S = 3600.0
+
+
+def max_processes() -> int:
+    """The most local processes ``--nproc`` accepts: the machine's CPU count."""
+    return max(1, os.cpu_count() or 1)
+
+
+def check_nproc(nproc) -> int:
+    """``nproc`` as an int in 1 .. :func:`max_processes`, else one clear error."""
+    try:
+        n = int(nproc)
+    except (TypeError, ValueError):
+        raise BadInputError(f"--nproc must be a whole number of processes, got {nproc!r}") from None
+    limit = max_processes()
+    require(n >= 1, f"--nproc must be at least 1 (1: no worker processes), got {n}")
+    require(n <= limit, f"--nproc {n} is more than this machine's {limit} CPUs; use --nproc {limit} or fewer")
+    return n
+
+
+def threads_per_process(nproc: int) -> int:
+    """Torch threads each of ``nproc`` processes uses while rendering."""
+    return max(1, (os.cpu_count() or 1) // max(1, nproc))
+
+
+@dataclass
+class RenderRequest:
+    """What every rank needs to render its share: cameras (``Cameras.to_json``), the ``VolumeRenderer``
+    keyword arguments (occupancy grid included) and whether surface / fringe depths are tracked."""
+    cameras: dict
+    renderer_kwargs: dict
+    depths: bool
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _render_share(field, request: RenderRequest, rank: int, world: int) -> list[tuple[int, dict]]:
+    """Render views ``rank, rank + world, ...`` of the request: [(view index, {rgb, opacity, depths...})]."""
+    from .render.cameras import Cameras
+    from .render.volume import VolumeRenderer
+
+    cameras = Cameras.from_json(request.cameras)
+    renderer = VolumeRenderer(field, **request.renderer_kwargs)
+    out = []
+    for i in range(rank, len(cameras), world):
+        r = renderer.render(cameras, i, crossings=request.depths)
+        out.append((i, {k: np.asarray(v) for k, v in r.items()}))
+    return out
+
+
+def _worker(index: int, field, world: int, port: int, timeout_s: float) -> None:
+    """Ranks 1 .. world-1: join the group, then serve render requests until told to stop."""
+    import torch.distributed as dist
+
+    rank = index + 1
+    torch.set_num_threads(threads_per_process(world))
+    store = dist.TCPStore("127.0.0.1", port, world, is_master=False, timeout=timedelta(seconds=timeout_s))
+    store.set(f"ready{rank}", "1")
+    dist.init_process_group("gloo", store=store, rank=rank, world_size=world, timeout=timedelta(seconds=timeout_s))
+    try:
+        while True:
+            box = [None]
+            dist.broadcast_object_list(box, src=0)
+            request = box[0]
+            if request is None:
+                break
+            with torch.no_grad():
+                share = _render_share(field, request, rank, world)
+            dist.gather_object(share, None, dst=0)
+    finally:
+        dist.destroy_process_group()
+
+
+class RenderPool:
+    """``nproc`` processes (this one and ``nproc - 1`` spawned workers) that render a field's views together.
+
+    Use as a context manager; :meth:`render_views` has the contract of
+    :func:`neuras_distill.pipeline.evaluate.render_field_views` (renders in view order, per-view seconds).
+    """
+
+    def __init__(self, field, nproc: int, timeout_s: float = DEFAULT_TIMEOUT_S):
+        import torch.distributed as dist
+        import torch.multiprocessing as mp
+
+        self.nproc = check_nproc(nproc)
+        require(self.nproc >= 2, "a RenderPool needs at least 2 processes")
+        self.timeout_s = float(timeout_s)
+        port = _free_port()
+        self._store = dist.TCPStore("127.0.0.1", port, self.nproc, is_master=True,
+                                    timeout=timedelta(seconds=self.timeout_s), wait_for_workers=False)
+        try:
+            self._context = mp.start_processes(_worker, args=(field, self.nproc, port, self.timeout_s),
+                                               nprocs=self.nproc - 1, join=False, start_method="spawn")
+        except Exception as exc:   # the field could not be sent (e.g. it holds a local function)
+            raise BadInputError(f"--nproc {self.nproc}: the field cannot be sent to worker processes "
+                                f"({type(exc).__name__}: {exc}); run with --nproc 1") from None
+        self._join_group(dist, port)
+        self._dist = dist
+
+    def _join_group(self, dist, port: int) -> None:
+        """Wait until every worker has reached the store (each sets ``ready<rank>``), watching them meanwhile: one
+        that exits first (it could not import or unpickle something) ends the wait at once instead of after
+        ``timeout_s``; then form the group, which no longer waits on anyone."""
+        import time
+
+        keys = [f"ready{r}" for r in range(1, self.nproc)]
+        while not self._store.check(keys):
+            dead = [p.exitcode for p in self._context.processes if p.exitcode is not None]
+            if dead:
+                self._kill()
+                raise BadInputError(f"--nproc {self.nproc}: a worker process exited while starting (exit code "
+                                    f"{dead[0]}); run with --nproc 1")
+            time.sleep(0.05)
+        try:
+            dist.init_process_group("gloo", store=self._store, rank=0, world_size=self.nproc,
+                                    timeout=timedelta(seconds=self.timeout_s))
+        except Exception as exc:
+            self._kill()
+            raise BadInputError(f"--nproc {self.nproc}: the worker processes did not start "
+                                f"({type(exc).__name__}: {str(exc).splitlines()[0][:160]}); "
+                                f"run with --nproc 1") from None
+
+    def render_views(self, renderer, cameras, progress=None, *, depths: bool = False):
+        """Every camera rendered once, split over the ranks: a ``FieldRenders`` in view order (``seconds``:
+        each view's render time on the rank that rendered it, while the others rendered theirs)."""
+        import time
+
+        from .pipeline.evaluate import FieldRenders
+
+        request = RenderRequest(cameras.to_json(), renderer_settings(renderer), depths)
+        old = torch.get_num_threads()
+        torch.set_num_threads(threads_per_process(self.nproc))
+        t0 = time.perf_counter()
+        try:
+            self._dist.broadcast_object_list([request], src=0)
+            with torch.no_grad():
+                own = _render_share(renderer.field, request, 0, self.nproc)
+            shares = [None] * self.nproc
+            self._dist.gather_object(own, shares, dst=0)
+        except RuntimeError as exc:
+            self._kill()
+            raise BadInputError(f"--nproc {self.nproc}: a worker process failed or did not answer within "
+                                f"{self.timeout_s:.0f} s ({str(exc).splitlines()[0][:160]}); "
+                                f"run with --nproc 1") from None
+        finally:
+            torch.set_num_threads(old)
+        wall = time.perf_counter() - t0
+        views = dict(item for share in shares for item in share)
+        require(sorted(views) == list(range(len(cameras))), "--nproc: the workers returned an incomplete set of views")
+        renders = FieldRenders([], [], [], [], [])
+        for i in range(len(cameras)):
+            out = views[i]
+            renders.images.append(out["rgb"])
+            renders.opacities.append(out["opacity"])
+            if depths:
+                renders.surface_depths.append(out["surface_depth"])
+                renders.fringe_depths.append(out["fringe_depth"])
+            renders.seconds.append(wall / len(cameras))   # wall time per view of the whole split render
+        if progress is not None:
+            progress(len(cameras), len(cameras))
+        return renders
+
+    def close(self) -> None:
+        """Tell the workers to stop, leave the group and wait for them."""
+        if getattr(self, "_dist", None) is None:
+            return
+        try:
+            self._dist.broadcast_object_list([None], src=0)
+            self._dist.destroy_process_group()
+            self._context.join(timeout=60)
+        except Exception:
+            self._kill()
+        self._dist = None
+
+    def _kill(self) -> None:
+        for p in getattr(self._context, "processes", []):
+            if p.is_alive():
+                p.kill()
+        try:
+            import torch.distributed as dist
+            if dist.is_initialized():
+                dist.destroy_process_group()
+        except Exception:
+            pass
+        self._dist = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def renderer_settings(renderer) -> dict:
+    """The keyword arguments that rebuild ``renderer`` (a ``VolumeRenderer``) on another rank, its occupancy
+    grid included (moved to the host)."""
+    occupancy = renderer.occupancy.to("cpu") if renderer.occupancy is not None else None
+    return {"num_steps": renderer.num_steps, "chunk": renderer.chunk, "occupancy": occupancy,
+            "early_stop": renderer.early_stop, "segment": renderer.segment, "min_weight": renderer.min_weight,
+            "device": "cpu"}

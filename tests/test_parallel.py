@@ -1,0 +1,110 @@
+"""--nproc: worker processes share the teacher's volume rendering (neuras_distill.parallel, torch.distributed gloo)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from neuras_distill.errors import BadInputError
+from neuras_distill.parallel import RenderPool, check_nproc, max_processes
+from neuras_distill.pipeline.evaluate import render_field_views
+from neuras_distill.render.volume import VolumeRenderer
+from neuras_distill.scenes.analytic import SphereSDF
+
+
+class DiesInWorkers(SphereSDF):
+    """A sphere whose evaluation kills any process but the one that made it (a crashing worker)."""
+
+    def __init__(self):
+        super().__init__(radius=0.5)
+        self.parent = os.getpid()
+
+    def geometry(self, x):
+        if os.getpid() != self.parent:
+            os._exit(3)
+        return super().geometry(x)
+
+
+class FailsToArrive(SphereSDF):
+    """A sphere that cannot be unpickled in a worker (a worker that dies before the group forms)."""
+
+    def __setstate__(self, state):
+        raise RuntimeError("this field refuses to be unpickled")
+
+
+class HoldsALocalFunction(SphereSDF):
+    def __init__(self):
+        super().__init__(radius=0.5)
+        self.shade = lambda x: x       # pickle cannot send a lambda to a worker
+
+
+def test_nproc_is_checked_with_one_line():
+    assert check_nproc("2") == 2 and check_nproc(1) == 1
+    with pytest.raises(BadInputError, match="at least 1"):
+        check_nproc(0)
+    with pytest.raises(BadInputError, match="whole number"):
+        check_nproc("two")
+    with pytest.raises(BadInputError, match=f"use --nproc {max_processes()} or fewer"):
+        check_nproc(max_processes() + 1)
+
+
+def test_two_processes_render_what_one_renders():
+    field = SphereSDF(radius=0.5)
+    cams = field.default_cameras(5, 40, 32)
+    renderer = VolumeRenderer(field, num_steps=64)
+    one = render_field_views(renderer, cams, depths=True)
+    with RenderPool(field, 2, timeout_s=120) as pool:
+        two = pool.render_views(renderer, cams, depths=True)
+        again = pool.render_views(renderer, cams[:3], depths=False)   # the pool serves more than one request
+    assert len(two.images) == 5 and len(again.images) == 3 and again.surface_depths == []
+    for a, b in zip(one.images + one.opacities + one.surface_depths + one.fringe_depths,
+                    two.images + two.opacities + two.surface_depths + two.fringe_depths):
+        assert a.shape == b.shape and float(np.abs(a - b).max()) < 1e-5
+    assert float(np.abs(one.images[0] - again.images[0]).max()) < 1e-5
+    assert one.images[0].std() > 0.05           # not a blank frame: the sphere is in view
+
+
+def test_a_worker_that_dies_ends_the_render_with_one_line():
+    field = DiesInWorkers()
+    cams = field.default_cameras(4, 16, 16)
+    renderer = VolumeRenderer(field, num_steps=16, occupancy=None)
+    pool = RenderPool(field, 2, timeout_s=60)
+    with pytest.raises(BadInputError, match=r"--nproc 2: a worker process failed.*run with --nproc 1"):
+        pool.render_views(renderer, cams)
+    pool.close()
+    assert not torch.distributed.is_initialized()
+
+
+def test_a_worker_that_exits_while_starting_is_noticed_at_once():
+    import time
+
+    t0 = time.perf_counter()
+    with pytest.raises(BadInputError, match=r"a worker process exited while starting.*--nproc 1"):
+        RenderPool(FailsToArrive(radius=0.5), 2, timeout_s=600)
+    assert time.perf_counter() - t0 < 120          # not the 600 s group timeout
+
+
+def test_a_field_that_cannot_be_sent_is_refused():
+    with pytest.raises(BadInputError, match=r"cannot be sent to worker processes.*--nproc 1"):
+        RenderPool(HoldsALocalFunction(), 2, timeout_s=30)
+
+
+@pytest.mark.gl
+def test_cli_nproc_runs_and_refuses(tmp_path, capsys):
+    from neuras_distill.cli import main
+
+    bad = tmp_path / "bad"
+    assert main(["from-synthetic", "sphere", "--out", str(bad), "--nproc", "0", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--nproc must be at least 1" in err[0] and not bad.exists()
+
+    out = tmp_path / "run"
+    code = main(["from-synthetic", "sphere", "--preset", "fast", "--steps", "200", "--eval-width", "96",
+                 "--out", str(out), "--nproc", "2", "--device", "cpu", "--quiet"])
+    assert code == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["processes"] == 2 and rep["psnr"] > 28.0, (rep["processes"], rep["psnr"])
