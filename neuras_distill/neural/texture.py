@@ -12,8 +12,15 @@ Owns: :class:`NeuralTexture` (a (H, W, D) parameter, row j = v index, column i =
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 from torch import nn
+
+# torch 2.11 (seen with 2.11.0+cu130 on an H100) warns once per process that sparse invariant checks are off
+# when the atlas's sparse gradient is built with ``check_invariants=False`` on purpose (the indices are made
+# in range here); the warning told the user nothing they could act on.
+warnings.filterwarnings("ignore", message="Sparse invariant checks are implicitly disabled")
 
 
 def bilinear_corners(uv: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
