@@ -213,12 +213,13 @@ class RenderPool:
         for p in getattr(self._context, "processes", []):
             if p.is_alive():
                 p.kill()
-        try:
-            import torch.distributed as dist
+        import contextlib
+
+        import torch.distributed as dist
+
+        with contextlib.suppress(Exception):   # best effort: the group may be half-formed or already broken
             if dist.is_initialized():
                 dist.destroy_process_group()
-        except Exception:
-            pass
         self._dist = None
 
     def __enter__(self):
