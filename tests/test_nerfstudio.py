@@ -182,17 +182,105 @@ def test_checkpoints_with_foreign_globals_or_nan_weights_are_refused(tmp_path):
         NerfstudioAdapter().load(run)
 
 
-def test_a_tcnn_layout_is_refused_with_what_to_do(tmp_path):
+def _tcnn_parts(s, n_app: int, gen: torch.Generator) -> dict:
+    """Random weights of a small nerfacto in tcnn's shapes: grid table, base matrices, head matrices (padded)."""
+    from adapters.nerfstudio.tcnn_layout import grid_config
+
+    def mat(rows, cols):
+        return torch.randn(rows, cols, generator=gen) / cols ** 0.5
+
+    n_feat = s.num_levels * s.features_per_level
+    pad16 = lambda n: (n + 15) // 16 * 16                                       # noqa: E731
+    return {"table": (torch.rand(grid_config(s).n_params(), generator=gen) - 0.5) * 2.0,
+            "base": [mat(s.hidden_dim, pad16(n_feat)), mat(pad16(1 + s.geo_feat_dim), s.hidden_dim)],
+            "head": [mat(s.hidden_dim_color, pad16(16 + s.geo_feat_dim + n_app)),
+                     mat(s.hidden_dim_color, s.hidden_dim_color), mat(16, s.hidden_dim_color)],
+            "embedding": torch.randn(5, n_app, generator=gen)}
+
+
+def _relu_chain(mats, h):
+    for i, w in enumerate(mats):
+        h = h @ w.T
+        if i < len(mats) - 1:
+            h = torch.relu(h)
+    return h
+
+
+def _pad(h, width, value):
+    return torch.cat([h, torch.full((h.shape[0], width - h.shape[1]), value)], dim=1)
+
+
+def test_the_tcnn_layout_of_each_nerfstudio_era_is_read():
+    """tiny-cuda-nn's flat vectors (network first, then the grid; row-major padded matrices; inputs padded with
+    0 after the grid and 1.0 after tcnn's Identity encoding) in the key names of three nerfstudio eras give the
+    field computed from the parts directly (tcnn's grid, tcnn's SH of d, exp density, sigmoid colour)."""
+    from adapters.nerfstudio.nerfacto import NerfactoNetwork, contract_inf
+    from adapters.nerfstudio.run import NerfactoSettings
+    from adapters.nerfstudio.tcnn_layout import grid_config
+    from neuras_distill.components.tcnn import HashGridEncoding, sh_encode_deg4
+
+    s = NerfactoSettings(num_levels=4, base_res=4, max_res=32, log2_hashmap_size=10, hidden_dim=16,
+                         hidden_dim_color=16, appearance_embed_dim=4, average_init_density=0.5, implementation="tcnn")
+    gen = torch.Generator().manual_seed(3)
+    parts = _tcnn_parts(s, 4, gen)
+    flat = lambda mats: torch.cat([m.reshape(-1) for m in mats])               # noqa: E731
+    x = torch.rand(500, 3, generator=gen) * 3.0 - 1.5                          # inside and beyond the unit box
+    d = torch.nn.functional.normalize(torch.randn(500, 3, generator=gen), dim=-1)
+    enc = HashGridEncoding(grid_config(s), parts["table"])((contract_inf(x) + 2.0) / 4.0)
+    eras = {
+        "nerfstudio >= 1.0.1": ({"mlp_base.model.params": torch.cat([flat(parts["base"]), parts["table"]]),
+                                 "mlp_head.tcnn_encoding.params": flat(parts["head"])}, 0.0),
+        "nerfstudio 0.3 .. 1.0": ({"mlp_base_grid.tcnn_encoding.params": parts["table"],
+                                   "mlp_base_mlp.tcnn_encoding.params": flat(parts["base"]),
+                                   "mlp_head.tcnn_encoding.params": flat(parts["head"])}, 1.0),
+        "nerfstudio 0.1 .. 0.2": ({"mlp_base.params": torch.cat([flat(parts["base"]), parts["table"]]),
+                                   "mlp_head.params": flat(parts["head"])}, 0.0),
+    }
+    app = parts["embedding"].mean(0)
+    for era, (state, base_pad) in eras.items():
+        state = dict(state, **{"embedding_appearance.embedding.weight": parts["embedding"]})
+        net = NerfactoNetwork(state, s, source=era)
+        assert net.layout == f"tcnn ({era})"
+        out = _relu_chain(parts["base"], _pad(enc, 16, base_pad))
+        inside = (((contract_inf(x) + 2.0) / 4.0 > 0) & ((contract_inf(x) + 2.0) / 4.0 < 1)).all(-1)
+        want_density = 0.5 * torch.exp(out[:, 0]) * inside
+        head_in = torch.cat([sh_encode_deg4(d), out[:, 1:16], app.expand(500, -1)], dim=1)
+        want_rgb = torch.sigmoid(_relu_chain(parts["head"], _pad(head_in, 48, 1.0))[:, :3])
+        with torch.no_grad():
+            assert torch.allclose(net.density(x), want_density, rtol=1e-5, atol=1e-6), era
+            assert torch.allclose(net.rgb(x, d), want_rgb, rtol=1e-5, atol=1e-6), era
+
+
+def test_a_tcnn_checkpoint_that_does_not_match_its_config_is_refused():
+    from adapters.nerfstudio.nerfacto import NerfactoNetwork
+    from adapters.nerfstudio.run import NerfactoSettings
+
+    s = NerfactoSettings(num_levels=4, base_res=4, max_res=32, log2_hashmap_size=10, hidden_dim=16,
+                         hidden_dim_color=16, appearance_embed_dim=4)
+    parts = _tcnn_parts(s, 4, torch.Generator().manual_seed(0))
+    state = {"mlp_base.model.params": torch.cat([p.reshape(-1) for p in parts["base"]] + [parts["table"]]),
+             "mlp_head.tcnn_encoding.params": torch.cat([p.reshape(-1) for p in parts["head"]]),
+             "embedding_appearance.embedding.weight": parts["embedding"]}
+    bigger = NerfactoSettings(**{**s.__dict__, "log2_hashmap_size": 11})       # config from another run
+    with pytest.raises(BadInputError, match=r"mlp_base.model.params has [\d,]+ parameters.*different runs"):
+        NerfactoNetwork(state, bigger)
+    state["mlp_head.tcnn_encoding.params"] = state["mlp_head.tcnn_encoding.params"][:-7]
+    with pytest.raises(BadInputError, match=r"mlp_head.tcnn_encoding.params has .*colour MLP"):
+        NerfactoNetwork(state, s)
+
+
+def test_a_run_configured_for_tcnn_but_trained_without_it_reads_as_torch(tmp_path):
+    """nerfstudio falls back to its torch modules when tiny-cuda-nn is missing: the keys decide the layout."""
     run = _copy_run(tmp_path)
-    ckpt_path = next((run / "nerfstudio_models").glob("*.ckpt"))
-    ckpt = torch.load(ckpt_path, weights_only=False)
-    pipeline = {k: v for k, v in ckpt["pipeline"].items() if "mlp_base" not in k}
-    pipeline["_model.field.mlp_base.model.params"] = torch.zeros(1000, dtype=torch.float16)
-    torch.save(dict(ckpt, pipeline=pipeline), ckpt_path)
     (run / "config.yml").write_text((run / "config.yml").read_text().replace("implementation: torch",
                                                                             "implementation: tcnn"))
-    with pytest.raises(BadInputError, match="tiny-cuda-nn.*only the 'torch' layout"):
-        NerfstudioAdapter().load(run)
+    field = NerfstudioAdapter().load(run)
+    assert field.network.layout == "torch"
+    ref = np.load(RUN / "reference_points.npz")
+    with torch.no_grad():
+        sigma = field.network.density(torch.from_numpy(ref["positions"])).numpy()
+    dense = ref["density"] > 1e-2
+    assert np.max(np.abs(sigma[dense] - ref["density"][dense]) / ref["density"][dense]) < 1e-3
 
 
 def test_cli_bad_runs_exit_2_with_one_line(tmp_path):

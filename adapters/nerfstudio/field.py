@@ -42,6 +42,9 @@ class NerfstudioField:
         self.network = network
         self.settings = settings
         self.notes = list(settings.notes)
+        if network.layout != "torch":
+            self.notes.append(f"parameters in tiny-cuda-nn's layout, {network.layout}: evaluated in float32 here "
+                              "(tcnn evaluates in half precision: values agree to about 1e-3 relative)")
         if run.dataparser is not None:
             self.frame = "data"
             t = torch.as_tensor(run.dataparser["transform"], dtype=torch.float64)
@@ -127,6 +130,6 @@ class NerfstudioField:
 
     def __repr__(self) -> str:
         s = self.settings
-        return (f"NerfstudioField({s.method}, {s.implementation} layout, L{s.num_levels} F{s.features_per_level} "
+        return (f"NerfstudioField({s.method}, {self.network.layout} layout, L{s.num_levels} F{s.features_per_level} "
                 f"T2^{s.log2_hashmap_size}, frame={self.frame}, scale={self.scale:.4g}, aabb={self.aabb.tolist()})")
 

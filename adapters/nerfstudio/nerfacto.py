@@ -1,8 +1,9 @@
-"""nerfstudio's nerfacto field in plain PyTorch, from a checkpoint's state dict (docs/formats.md §3.3).
+"""nerfstudio's nerfacto field in plain PyTorch, from a checkpoint's state dict (docs/formats.md §3.3, §3.4).
 
 This module owns :class:`NerfactoNetwork`: density and colour of nerfstudio's ``NerfactoField`` (nerfstudio
-1.1 ``fields/nerfacto_field.py``) at points and directions **in nerfstudio's frame**, for the
-``implementation="torch"`` parameter layout (what nerfstudio writes without tiny-cuda-nn):
+1.1 ``fields/nerfacto_field.py``) at points and directions **in nerfstudio's frame**. The tiny-cuda-nn layout
+(``implementation="tcnn"``) is :mod:`.tcnn_layout`'s; this module reads the ``implementation="torch"`` layout
+(what nerfstudio writes without tiny-cuda-nn, key names of nerfstudio >= 1.0.1 and of 0.3 .. 1.0):
 
 * positions: L-infinity scene contraction (``|x|_inf < 1`` unchanged, else ``(2 - 1/|x|_inf) x / |x|_inf``), then
   ``(x + 2) / 4`` into [0, 1]^3 (without contraction: normalised by the scene box); points outside (0, 1)^3 get
@@ -25,9 +26,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from neuras_distill.components.tcnn import TcnnMLP, sh_encode_deg4
 from neuras_distill.errors import BadInputError, require
 
 from .run import NerfactoSettings
+from .tcnn_layout import is_tcnn_state, tcnn_modules
 
 _PRIMES = (1, 2654435761, 805459861)
 
@@ -79,52 +82,111 @@ def _linear_stack(state: dict, prefix: str, source: str) -> nn.ModuleList:
     return layers
 
 
-class NerfactoNetwork(nn.Module):
-    """The nerfacto field in nerfstudio's frame: :meth:`density` (N, 3) -> (N,), :meth:`rgb` -> (N, 3).
+class TorchHashGrid(nn.Module):
+    """nerfstudio's torch ``HashEncoding``: positions in [0, 1]^3 (N, 3) -> features (N, L * F)."""
 
-    Args:
-        state: the field's state dict (``_model.field.`` prefix removed), torch layout.
-        settings: the model section of config.yml.
-        appearance: "mean" (nerfstudio's eval with ``use_average_appearance_embedding``), "zeros", or the
-            index of a training image whose embedding row is used.
-        source: the checkpoint's name for messages.
-    """
-
-    def __init__(self, state: dict, settings: NerfactoSettings, appearance="mean", source: str = "checkpoint"):
+    def __init__(self, table: torch.Tensor, s: NerfactoSettings):
         super().__init__()
-        s = settings
-        require(s.implementation == "torch" or "mlp_base.model.0.hash_table" in state,
-                f"{source}: this run was trained with tiny-cuda-nn (implementation 'tcnn': parameters in tcnn's "
-                "fused layout, mlp_base.tcnn_encoding.params); only the 'torch' layout is read so far. Re-export "
-                "the run with implementation=torch (ns-train ... --pipeline.model.implementation torch "
-                "--load-dir <run>/nerfstudio_models) or see docs/formats.md §3")
-        table = state.get("mlp_base.model.0.hash_table")
-        require(table is not None, f"{source}: no mlp_base.model.0.hash_table: not a nerfacto field checkpoint")
-        size = 2 ** s.log2_hashmap_size
-        require(tuple(table.shape) == (s.num_levels * size, s.features_per_level),
-                f"{source}: hash table has shape {tuple(table.shape)}, config.yml says {s.num_levels} levels x "
-                f"2^{s.log2_hashmap_size} entries x {s.features_per_level} features "
-                f"({(s.num_levels * size, s.features_per_level)}); config and checkpoint are from different runs")
-        self.settings = s
         self.register_buffer("hash_table", table.float().contiguous())
-        self.table_size = size
+        self.table_size = 2 ** s.log2_hashmap_size
         # exactly nerfstudio's expression and dtypes (a numpy float64 raised to an int64 tensor gives float32): a
         # resolution computed in float64 can floor to the next integer at some level
         growth = (np.exp((np.log(s.max_res) - np.log(s.base_res)) / (s.num_levels - 1)) if s.num_levels > 1
                   else 1)
         levels = torch.arange(s.num_levels)
         self.register_buffer("scalings", torch.floor(s.base_res * growth ** levels).float())
-        self.register_buffer("level_offsets", levels * size)
-        self.base = _linear_stack(state, "mlp_base.model.1", source)
-        require(self.base[0].in_features == s.num_levels * s.features_per_level
-                and self.base[-1].out_features == 1 + s.geo_feat_dim,
-                f"{source}: base MLP maps {self.base[0].in_features} -> {self.base[-1].out_features}, expected "
-                f"{s.num_levels * s.features_per_level} -> {1 + s.geo_feat_dim}")
-        self.head = _linear_stack(state, "mlp_head", source)
+        self.register_buffer("level_offsets", levels * self.table_size)
+
+    def forward(self, p: torch.Tensor) -> torch.Tensor:
+        scaled = p[:, None, :] * self.scalings[None, :, None]              # (N, L, 3)
+        c = torch.ceil(scaled).long()
+        f = torch.floor(scaled).long()
+        t = scaled - f                                                     # weight of the ceil corner
+        primes = torch.tensor(_PRIMES, device=p.device)
+        out = 0.0
+        for cx in (0, 1):
+            for cy in (0, 1):
+                for cz in (0, 1):
+                    corner = torch.stack([(c if cx else f)[..., 0], (c if cy else f)[..., 1],
+                                          (c if cz else f)[..., 2]], dim=-1) * primes
+                    index = (corner[..., 0] ^ corner[..., 1] ^ corner[..., 2]) % self.table_size + self.level_offsets
+                    w = ((t[..., 0] if cx else 1 - t[..., 0]) * (t[..., 1] if cy else 1 - t[..., 1])
+                         * (t[..., 2] if cz else 1 - t[..., 2]))
+                    out = out + w[..., None] * self.hash_table[index]
+        return out.reshape(p.shape[0], -1)
+
+
+class ReluMLP(nn.Module):
+    """nerfstudio's torch ``MLP``: Linear layers with ReLU between them, no output activation."""
+
+    def __init__(self, layers: nn.ModuleList):
+        super().__init__()
+        self.layers = layers
+
+    def forward(self, h: torch.Tensor) -> torch.Tensor:
+        for i, layer in enumerate(self.layers):
+            h = layer(h)
+            if i < len(self.layers) - 1:
+                h = torch.relu(h)
+        return h
+
+
+#: (hash table, base MLP prefix) of the torch layout per nerfstudio era (>= 1.0.1, then 0.3 .. 1.0)
+_TORCH_ERAS = (("mlp_base.model.0.hash_table", "mlp_base.model.1"), ("mlp_base_grid.hash_table", "mlp_base_mlp"))
+
+
+def _torch_modules(state: dict, s: NerfactoSettings, source: str) -> tuple[nn.Module, nn.Module]:
+    """(base, head) of the ``implementation: torch`` layout (also what ``tcnn`` runs fall back to without
+    tiny-cuda-nn installed)."""
+    table_key, mlp_prefix = next(((t, m) for t, m in _TORCH_ERAS if t in state), (None, None))
+    require(table_key is not None,
+            f"{source}: neither a torch hash table (mlp_base.model.0.hash_table, mlp_base_grid.hash_table) nor "
+            "tiny-cuda-nn parameters (mlp_base.model.params, ...): not a nerfacto field checkpoint")
+    table = state[table_key]
+    size = 2 ** s.log2_hashmap_size
+    require(tuple(table.shape) == (s.num_levels * size, s.features_per_level),
+            f"{source}: hash table has shape {tuple(table.shape)}, config.yml says {s.num_levels} levels x "
+            f"2^{s.log2_hashmap_size} entries x {s.features_per_level} features "
+            f"({(s.num_levels * size, s.features_per_level)}); config and checkpoint are from different runs")
+    base_layers = _linear_stack(state, mlp_prefix, source)
+    require(base_layers[0].in_features == s.num_levels * s.features_per_level
+            and base_layers[-1].out_features == 1 + s.geo_feat_dim,
+            f"{source}: base MLP maps {base_layers[0].in_features} -> {base_layers[-1].out_features}, expected "
+            f"{s.num_levels * s.features_per_level} -> {1 + s.geo_feat_dim}")
+    return nn.Sequential(TorchHashGrid(table, s), ReluMLP(base_layers)), ReluMLP(_linear_stack(state, "mlp_head",
+                                                                                                source))
+
+
+class NerfactoNetwork(nn.Module):
+    """The nerfacto field in nerfstudio's frame: :meth:`density` (N, 3) -> (N,), :meth:`rgb` -> (N, 3).
+
+    Args:
+        state: the field's state dict (``_model.field.`` prefix removed), torch or tiny-cuda-nn layout (found from
+            the keys: a run configured for tcnn but trained without it has the torch layout).
+        settings: the model section of config.yml.
+        appearance: "mean" (nerfstudio's eval with ``use_average_appearance_embedding``), "zeros", or the
+            index of a training image whose embedding row is used.
+        source: the checkpoint's name for messages.
+
+    ``layout`` names what was read ("torch" or "tcnn (<era>)").
+    """
+
+    def __init__(self, state: dict, settings: NerfactoSettings, appearance="mean", source: str = "checkpoint"):
+        super().__init__()
+        s = settings
+        self.settings = s
+        if is_tcnn_state(state):
+            self.base, self.head, era = tcnn_modules(state, s, source)
+            self.layout = f"tcnn ({era})"
+        else:
+            self.base, self.head = _torch_modules(state, s, source)
+            self.layout = "torch"
         emb = state.get("embedding_appearance.embedding.weight")
         width = emb.shape[1] if emb is not None else 0
-        require(self.head[0].in_features == 16 + s.geo_feat_dim + width and self.head[-1].out_features == 3,
-                f"{source}: colour MLP takes {self.head[0].in_features} inputs, expected 16 (directions) + "
+        head_in = self.head.n_input_dims if isinstance(self.head, TcnnMLP) else self.head.layers[0].in_features
+        head_out = self.head.n_output_dims if isinstance(self.head, TcnnMLP) else self.head.layers[-1].out_features
+        require(head_in == 16 + s.geo_feat_dim + width and head_out == 3,
+                f"{source}: colour MLP takes {head_in} inputs, expected 16 (directions) + "
                 f"{s.geo_feat_dim} (geometry) + {width} (appearance)")
         if emb is None:
             self.register_buffer("appearance", torch.zeros(0))
@@ -153,38 +215,18 @@ class NerfactoNetwork(nn.Module):
         inside = ((p > 0.0) & (p < 1.0)).all(dim=-1)
         return p * inside[:, None], inside
 
-    def encode(self, p: torch.Tensor) -> torch.Tensor:
-        """Hash-grid features (N, L * F) of positions in [0, 1]^3 (nerfstudio's ``HashEncoding.pytorch_fwd``)."""
-        scaled = p[:, None, :] * self.scalings[None, :, None]              # (N, L, 3)
-        c = torch.ceil(scaled).long()
-        f = torch.floor(scaled).long()
-        t = scaled - f                                                     # weight of the ceil corner
-        primes = torch.tensor(_PRIMES, device=p.device)
-        out = 0.0
-        for cx in (0, 1):
-            for cy in (0, 1):
-                for cz in (0, 1):
-                    corner = torch.stack([(c if cx else f)[..., 0], (c if cy else f)[..., 1],
-                                          (c if cz else f)[..., 2]], dim=-1) * primes
-                    index = (corner[..., 0] ^ corner[..., 1] ^ corner[..., 2]) % self.table_size + self.level_offsets
-                    w = ((t[..., 0] if cx else 1 - t[..., 0]) * (t[..., 1] if cy else 1 - t[..., 1])
-                         * (t[..., 2] if cz else 1 - t[..., 2]))
-                    out = out + w[..., None] * self.hash_table[index]
-        return out.reshape(p.shape[0], -1)
-
-    @staticmethod
-    def _mlp(layers: nn.ModuleList, h: torch.Tensor) -> torch.Tensor:
-        for i, layer in enumerate(layers):
-            h = layer(h)
-            if i < len(layers) - 1:
-                h = torch.relu(h)
-        return h
+    def direction_encoding(self, d: torch.Tensor) -> torch.Tensor:
+        """(N, 16) spherical harmonics of unit directions d (N, 3) as the layout's SHEncoding computes them: tcnn's
+        maps nerfstudio's ``(d + 1) / 2`` back to d; the torch one evaluates its polynomials on ``(d + 1) / 2``."""
+        if self.layout == "torch":
+            return sh4_nerfstudio((d + 1.0) / 2.0)
+        return sh_encode_deg4(d)
 
     # ------------------------------------------------------------------ field
     def base_outputs(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(density (N,) per nerfstudio unit, geometry features (N, 15)) at nerfstudio-frame points (N, 3)."""
         p, inside = self.normalise(x.float())
-        h = self._mlp(self.base, self.encode(p))
+        h = self.base(p)
         density = self.settings.average_init_density * torch.exp(h[:, 0]) * inside
         return density, h[:, 1:]
 
@@ -195,10 +237,10 @@ class NerfactoNetwork(nn.Module):
         """(N, 3) colour in [0, 1] at nerfstudio-frame points x and unit directions d (N, 3)."""
         _, geo = self.base_outputs(x)
         d = torch.nn.functional.normalize(d.float(), dim=-1)
-        parts = [sh4_nerfstudio((d + 1.0) / 2.0), geo]
+        parts = [self.direction_encoding(d), geo]
         if self.appearance.numel():
             parts.append(self.appearance.expand(x.shape[0], -1))
-        return torch.sigmoid(self._mlp(self.head, torch.cat(parts, dim=-1)))
+        return torch.sigmoid(self.head(torch.cat(parts, dim=-1)))
 
 
 def field_state(pipeline: dict, source: str) -> dict:
