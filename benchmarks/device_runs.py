@@ -2,6 +2,7 @@
 
     python benchmarks/device_runs.py --device cuda --out /tmp/cuda_runs [--scenes demo,ngp-ball,street]
     python benchmarks/device_runs.py --device cpu  --out /tmp/cpu_runs  --scenes demo
+    python benchmarks/device_runs.py --device cuda --out /tmp/cuda_fp16 --scenes demo -- --precision fp16
 
 Each scene is the command a user types (``neuras-distill demo``, ``from-ngp tests/data/ngp/ball.ingp``,
 ``from-synthetic street``) with ``--device`` and held-out frames 1920 pixels wide, run in a child process and
@@ -57,6 +58,9 @@ def summary_row(result: dict) -> dict:
         "field_fps": round(r["fps_before"], 4), "bundle_fps": round(r["fps_after"], 1),
         "field_ms": round(1000.0 / r["fps_before"], 1), "bundle_ms": round(1000.0 / r["fps_after"], 2),
         "speedup": round(r["speedup"], 1), "psnr": round(r["psnr"], 2), "flip": round(r["flip"], 4),
+        "bundle_gpu_ms": r["frame_time_ms"].get("bundle_gpu_median"),
+        "bundle_pipelined_ms": r["frame_time_ms"].get("bundle_pipelined"),
+        "speedup_pipelined": r.get("speedup_pipelined"), "precision": r["device"].get("precision"),
         "steps": r["training_plan"].get("steps"), "plan": r["training_plan"].get("reason"),
         "device": r["device"],
     }
@@ -90,6 +94,11 @@ def main() -> int:
         print(f"{row['scene']:10s} {res:>10s} {row['wall_s']:7.1f} {row['field_ms']:9.1f} {row['bundle_ms']:9.2f} "
               f"{row['speedup']:8.1f} {row['psnr']:6.2f} {row['flip']:6.4f} {row['steps']!s:>6s}")
         print("           stages: " + ", ".join(f"{k} {v:.1f}" for k, v in row["stage_seconds"].items()))
+        if row.get("bundle_pipelined_ms"):
+            gpu = row["bundle_gpu_ms"]
+            print(f"           bundle back to back {row['bundle_pipelined_ms']:.2f} ms (speedup "
+                  f"{row['speedup_pipelined']:.1f}), GPU time " + (f"{gpu:.2f} ms" if gpu else "not measured")
+                  + f"; field precision {row['precision']}")
     return 0 if all("rc" not in row for row in rows) else 1
 
 

@@ -35,6 +35,9 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
     p.add_argument("--device", default="auto", metavar="DEVICE",
                    help="where the field, the teacher and training compute: auto (a GPU when torch sees one), "
                         "cpu, cuda or cuda:N (default auto; the bundle is played by OpenGL)")
+    p.add_argument("--precision", choices=["fp32", "fp16"], default=None,
+                   help="field evaluation precision (default fp32; fp16: half hash-grid tables and MLPs with "
+                        "float32 compositing, as Instant-NGP evaluates: for GPUs)")
     p.add_argument("--nproc", default=1, metavar="N",
                    help="processes that share the teacher's volume rendering on the CPU (default 1: this one "
                         "alone; N spawns N-1 workers that each hold a copy of the field)")
@@ -170,6 +173,8 @@ def _config_from_args(args):
         overrides.setdefault("eval", {})["width"] = args.eval_width
     if args.skyboxes is not None:
         overrides.setdefault("skybox", {})["mode"] = args.skyboxes
+    if getattr(args, "precision", None) is not None:
+        overrides.setdefault("teacher", {})["precision"] = args.precision
     return load_config(preset=args.preset, path=args.config, overrides=overrides)
 
 

@@ -49,6 +49,9 @@ class TeacherConfig:
     """Ray-marching steps across the field's box diagonal (the teacher and the "before" renderer)."""
     train_width: int = 640
     """Width in pixels of the training renders (height follows the cameras' aspect ratio)."""
+    precision: str = "fp32"
+    """Field evaluation: "fp32", or "fp16" (half hash-grid tables and MLPs, float32 compositing; as Instant-NGP
+    evaluates). Applies to every field evaluation of the run: the teacher, marching cubes, the "before" renders."""
 
 
 @dataclass
@@ -252,6 +255,8 @@ class DistillConfig:
                                             f"got {tr.vq_warmup}")
         require((self.eval.width == 0 or self.eval.width >= 16) and self.teacher.train_width >= 16,
                 "image widths must be at least 16 (eval width 0: the cameras' own size)")
+        from .precision import check_precision
+        check_precision(self.teacher.precision)
         require(self.cameras.num_views >= 2, "need at least 2 views (some train, some held out)")
         sb = self.skybox
         _require_choice(sb.mode, Mode, "skybox mode")

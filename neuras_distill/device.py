@@ -15,6 +15,8 @@ OpenGL, whichever device that is (``playback.context.gl_info``).
 
 from __future__ import annotations
 
+import copy
+
 import re
 from typing import Any
 
@@ -213,9 +215,15 @@ class DeviceField:
     host tensors. Every other member is the wrapped field's. On the CPU no wrapper is used (:func:`on_device`).
     """
 
-    def __init__(self, field: Any, device: torch.device):
+    def __init__(self, field: Any, device: torch.device, precision: str = "fp32"):
+        from .precision import check_precision, half_tables
+
+        if check_precision(precision) == "fp16":
+            field = copy.deepcopy(field)        # half tables must not change the caller's field
         self.__dict__["_field"] = move_field(field, device)
         self.__dict__["device"] = torch.device(device)
+        self.__dict__["precision"] = precision
+        self.__dict__["half_tables"] = half_tables(self._field) if precision == "fp16" else 0
 
     def __getattr__(self, name: str) -> Any:
         value = getattr(self.__dict__["_field"], name)
@@ -243,16 +251,20 @@ class DeviceField:
         return self._call(self._field.radiance, x, d)
 
     def _call(self, fn, *tensors: torch.Tensor) -> torch.Tensor:
+        from .precision import autocast
+
         back = tensors[0].device
-        with torch.device(self.device):
+        with torch.device(self.device), autocast(self.device, self.precision):
             out = fn(*(t.to(self.device) for t in tensors))
+        if self.precision != "fp32":
+            out = out.float()                   # compositing and everything after stay in float32
         return out.to(back)
 
 
-def on_device(field: Any, device: torch.device) -> Any:
-    """The field to run the stages with: the field itself on the CPU (nothing changes), else a
-    :class:`DeviceField` on ``device``."""
+def on_device(field: Any, device: torch.device, precision: str = "fp32") -> Any:
+    """The field to run the stages with: the field itself on the CPU in float32 (nothing changes), else a
+    :class:`DeviceField` on ``device`` evaluating in ``precision`` (``neuras_distill.precision``)."""
     device = torch.device(device)
-    if device.type == "cpu":
+    if device.type == "cpu" and precision == "fp32":
         return field
-    return DeviceField(field, device)
+    return DeviceField(field, device, precision)

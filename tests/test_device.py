@@ -14,7 +14,8 @@ import torch
 from neuras_distill.device import (OUT_OF_MEMORY, DeviceField, chunk_for_memory, field_device, move_field,
                                    on_device, resolve_device)
 from neuras_distill.errors import BadInputError
-from neuras_distill.pipeline.run_report import device_info, software_gl
+from neuras_distill.pipeline.run_report import device_info
+from neuras_distill.playback.context import software_gl
 from neuras_distill.scenes.synthetic import make_scene
 
 

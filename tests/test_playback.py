@@ -232,6 +232,10 @@ void main() { f_color = vec4(abs(u_cam_pos) / 4.0, 1.0); }
     assert stats["frames"] == 3 and stats["resolution"] == [64, 48]
     assert math.isfinite(stats["fps"]) and stats["fps"] > 0 and stats["median_ms"] > 0
     assert stats["p90_ms"] >= stats["median_ms"]
+    assert stats["pipelined_ms"] > 0 and stats["pipelined_fps"] == pytest.approx(1000.0 / stats["pipelined_ms"])
+    # llvmpipe's timer queries time the submission, not the rasterizing: no GPU time is claimed for it
+    from neuras_distill.playback.context import gl_info, software_gl
+    assert (stats["gpu_median_ms"] is None) == software_gl(gl_info()["renderer"])
 
 
 @pytest.mark.gl

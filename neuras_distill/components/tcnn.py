@@ -375,14 +375,16 @@ class HashGridEncoding(torch.nn.Module):
         return torch.cat([self._encode(x[i:i + step], inside) for i in range(0, n, step)])
 
     def _compute_dtype(self) -> torch.dtype:
-        # float64 only for gradcheck-style use; half / bfloat16 tables are read in float32.
+        # float64 only for gradcheck-style use; positions and weights of half tables are float32.
         return torch.float64 if self.params.dtype == torch.float64 else torch.float32
 
     def _encode(self, x: torch.Tensor, inside: bool) -> torch.Tensor:
         n = x.shape[0]
         f = self.config.n_features_per_level
         dtype = self._compute_dtype()
-        table = self.params.view(-1, f).to(dtype)  # (total entries, F)
+        table = self.params.view(-1, f)  # (total entries, F)
+        if table.dtype != torch.float16:      # half tables (precision.half_tables) are gathered in half, as TCNN
+            table = table.to(dtype)
         xt = x.to(torch.float64).T  # (3, n)
         outs = []
         for kind, prefix, first, end, fast in self._groups:
@@ -410,7 +412,8 @@ class HashGridEncoding(torch.nn.Module):
             # Bags of 8 corners in (level, point) order; one fused gather + weighted sum -> (Lg * n, F).
             bags = idx.reshape(lg, 8, n).transpose(1, 2).reshape(lg * n, 8)
             bag_w = wt.reshape(lg, 8, n).transpose(1, 2).reshape(lg * n, 8)
-            outs.append(F.embedding_bag(bags, rows, per_sample_weights=bag_w, mode="sum").view(lg, n, f))
+            outs.append(F.embedding_bag(bags, rows, per_sample_weights=bag_w.to(rows.dtype), mode="sum")
+                        .to(dtype).view(lg, n, f))
         out = outs[0] if len(outs) == 1 else torch.cat(outs, dim=0)  # (L, n, F)
         return out.transpose(0, 1).reshape(n, self.config.n_output_dims())
 

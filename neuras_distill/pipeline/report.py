@@ -66,6 +66,9 @@ def summary_table(rep: dict) -> str:
         ("renderer", "volume rendering", "OpenGL rasterization"),
         (f"FPS @ {w}x{h}", f"{rep['fps_before']:.3g}", f"{rep['fps_after']:.4g}"),
         ("frame time (median)", f"{ft['field_median']:.1f} ms", f"{ft['bundle_median']:.2f} ms"),
+        *([("  frames back to back", "-", f"{ft['bundle_pipelined']:.2f} ms")] if ft.get("bundle_pipelined") else []),
+        *([("  GPU time (timer query)", "-", f"{ft['bundle_gpu_median']:.2f} ms")]
+          if ft.get("bundle_gpu_median") else []),
         ("PSNR / SSIM vs field", "reference", f"{rep['psnr']:.2f} dB / {rep['ssim']:.4f}"),
         *_fidelity_rows(rep),
         ("OpenGL vs torch parity", "-", f"{rep['parity_psnr']:.1f} dB"),

@@ -21,6 +21,7 @@ def device_info(gl_info: dict | None, device: torch.device | str = "cpu") -> dic
     neural texture's optimisation), ``bundle`` (OpenGL's renderer; ``bundle_note`` when a software renderer
     played it on a machine with a GPU), ``requested`` (the resolved ``--device``)."""
     from ..device import describe
+    from ..playback.context import software_gl
 
     compute = describe(device)
     gl = gl_info or {}
@@ -33,11 +34,6 @@ def device_info(gl_info: dict | None, device: torch.device | str = "cpu") -> dic
                               "frame rate is not the GPU's; install the vendor's EGL driver (NVIDIA: "
                               "libnvidia-gl, libegl1) so that EGL picks the GPU")
     return out
-
-
-def software_gl(renderer: str) -> bool:
-    """Whether an OpenGL renderer string names a software rasterizer (Mesa llvmpipe / softpipe, SwiftShader)."""
-    return any(word in renderer.lower() for word in ("llvmpipe", "softpipe", "swiftshader", "software"))
 
 
 def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, inputs: ShaderInputs,
@@ -58,7 +54,7 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "fps_after": fps_after,
         "speedup": fps_after / fps_before,
         "resolution": [test.width, test.height],
-        "device": device_info(gl_info, device),
+        "device": dict(device_info(gl_info, device), precision=cfg.teacher.precision),
         "psnr": ev.quality["psnr"],
         "ssim": ev.quality["ssim"],
         "lpips": None,
@@ -91,7 +87,11 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "origin": [float(x) for x in training.origin],
         "error_vs_runtime": ev.runtime_points,
         "frame_time_ms": {"field_median": 1000 * float(np.median(field_seconds)),
-                          "bundle_median": ev.timing["median_ms"], "bundle_p90": ev.timing.get("p90_ms")},
+                          "bundle_median": ev.timing["median_ms"], "bundle_p90": ev.timing.get("p90_ms"),
+                          "bundle_gpu_median": ev.timing.get("gpu_median_ms"),
+                          "bundle_pipelined": ev.timing.get("pipelined_ms")},
+        "speedup_pipelined": (1000.0 / ev.timing["pipelined_ms"]) / fps_before if ev.timing.get("pipelined_ms")
+        else None,
         "plain_texture": ev.plain,
         "silhouette_blend": ev.silhouette_blend,
         "training_plan": plan.to_json(),

@@ -14,6 +14,7 @@ Public API:
     moderngl_module() -> module            moderngl itself, imported on first call
     gl_available() -> (bool, reason)       for tests / CLI to skip or explain
     gl_info(ctx=None) -> dict              renderer, vendor, version strings
+    software_gl(renderer) -> bool          whether that renderer rasterizes in software
     GLUnavailable(RuntimeError)            raised when no context can be made
 """
 
@@ -113,3 +114,8 @@ def gl_info(ctx=None) -> dict:
         "version_code": int(ctx.version_code),
         "max_texture_size": int(info.get("GL_MAX_TEXTURE_SIZE", 0) or 0),
     }
+
+
+def software_gl(renderer: str) -> bool:
+    """Whether an OpenGL renderer string names a software rasterizer (Mesa llvmpipe / softpipe, SwiftShader)."""
+    return any(word in renderer.lower() for word in ("llvmpipe", "softpipe", "swiftshader", "software"))

@@ -101,7 +101,7 @@ class RunContext:
         if self.clock is None:
             self.clock = StageClock(self.root, self.log, self.cfg.train.seed)
         self.fingerprint = field_fingerprint(self.field)
-        self.field = on_device(self.field, self.device)
+        self.field = on_device(self.field, self.device, self.cfg.teacher.precision)
         self._background: Background | None = None
 
     @property
