@@ -61,6 +61,8 @@ def summary_row(result: dict) -> dict:
         "bundle_gpu_ms": r["frame_time_ms"].get("bundle_gpu_median"),
         "bundle_pipelined_ms": r["frame_time_ms"].get("bundle_pipelined"),
         "speedup_pipelined": r.get("speedup_pipelined"), "precision": r["device"].get("precision"),
+        "evaluate_parts": r.get("evaluate_seconds"), "peak_rss_mb": r.get("peak_rss_mb"),
+        "peak_gpu_mb": r.get("peak_gpu_mb"),
         "steps": r["training_plan"].get("steps"), "plan": r["training_plan"].get("reason"),
         "device": r["device"],
     }
@@ -94,6 +96,8 @@ def main() -> int:
         print(f"{row['scene']:10s} {res:>10s} {row['wall_s']:7.1f} {row['field_ms']:9.1f} {row['bundle_ms']:9.2f} "
               f"{row['speedup']:8.1f} {row['psnr']:6.2f} {row['flip']:6.4f} {row['steps']!s:>6s}")
         print("           stages: " + ", ".join(f"{k} {v:.1f}" for k, v in row["stage_seconds"].items()))
+        if row.get("evaluate_parts"):
+            print("           evaluate: " + ", ".join(f"{k} {v:.1f}" for k, v in row["evaluate_parts"].items()))
         if row.get("bundle_pipelined_ms"):
             gpu = row["bundle_gpu_ms"]
             print(f"           bundle back to back {row['bundle_pipelined_ms']:.2f} ms (speedup "

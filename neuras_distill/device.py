@@ -268,3 +268,18 @@ def on_device(field: Any, device: torch.device, precision: str = "fp32") -> Any:
     if device.type == "cpu" and precision == "fp32":
         return field
     return DeviceField(field, device, precision)
+
+
+def peak_memory_mb(device: torch.device | str = "cpu") -> dict:
+    """``{"peak_rss_mb": this process's peak resident memory, "peak_rss_children_mb": the largest of its
+    finished children (xatlas, workers), "peak_gpu_mb": torch's peak allocation on a CUDA device, else None}``."""
+    import resource
+
+    kib = 1024.0                                    # Linux reports ru_maxrss in KiB
+    device = torch.device(device)
+    gpu = None
+    if device.type == "cuda" and torch.cuda.is_available():
+        gpu = torch.cuda.max_memory_allocated(device) / 2**20
+    return {"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / kib,
+            "peak_rss_children_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / kib,
+            "peak_gpu_mb": gpu}

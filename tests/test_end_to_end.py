@@ -31,6 +31,9 @@ def test_report_has_the_contract(small_run):
     assert {p["kind"] for p in rep["error_vs_runtime"]} == {"field", "bundle"}
     assert all(np.isfinite(p["psnr"]) and p["seconds_per_frame"] > 0 for p in rep["error_vs_runtime"])
     assert sum(rep["stage_seconds"].values()) <= rep["distill_seconds"] + 1e-6
+    assert np.allclose(rep["scene_aabb"], result.report["scene_aabb"]) and np.asarray(rep["scene_aabb"]).shape == (2, 3)
+    assert np.all(np.asarray(rep["scene_aabb"])[1] > np.asarray(rep["scene_aabb"])[0])
+    assert rep["peak_rss_mb"] > 100 and rep["peak_gpu_mb"] is None and rep["processes"] == 1
 
 
 def test_the_bundle_carries_its_plain_texture_and_exports_to_gltf(small_run, tmp_path):

@@ -307,7 +307,7 @@ def test_a_nerfacto_run_distills_end_to_end(tmp_path):
     result = nd.distill(field, cams, config={"cameras": {"test_every": 6}, "teacher": {"num_steps": 128,
                                                                                          "train_width": 96},
                                              "geometry": {"grid_resolution": 96, "face_budget": 6000},
-                                             "texture": {"resolution": 128, "num_codes": 256},
+                                             "texture": {"resolution": 192, "num_codes": 256},
                                              "train": {"steps": 300}, "eval": {"width": 96, "fps_frames": 5,
                                                                                 "runtime_steps": [32]}},
                         out=tmp_path / "run", progress=False, log=lambda m: None)

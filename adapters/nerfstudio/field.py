@@ -7,7 +7,8 @@ dataset's ``transforms.json`` (metric when the capture was): ``x_ns = scale * (R
 data-frame unit. Without that file the field stays in nerfstudio's frame (``frame`` says which).
 
 Foreground box: where the density exceeds :data:`BOX_DENSITY` (per nerfstudio unit) on a grid over the scene box
-[-1, 1]^3 (nerfstudio's frame), grown by one cell; ``--foreground-box`` overrides it. Density that touches the
+[-1, 1]^3 (nerfstudio's frame), without floaters (connected blobs under :data:`FLOATER_MASS_FRACTION` of the
+largest blob's density mass), grown by one cell; ``--foreground-box`` overrides it. Density that touches the
 scene box's faces means content beyond it (the contracted region): ``unbounded``, the skybox path.
 
 Background: config.yml's ``background_color``: ``white`` / ``black`` are constants; ``random`` renders as black in
@@ -18,6 +19,7 @@ direction from the scene box's centre.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from neuras_distill.errors import require
@@ -27,6 +29,8 @@ from .run import NerfactoSettings, NerfstudioRun
 
 #: Density (per nerfstudio unit) above which a grid cell belongs to the foreground box.
 BOX_DENSITY = 1.0
+#: Connected blobs of such cells whose density mass is under this fraction of the largest blob's are floaters.
+FLOATER_MASS_FRACTION = 0.005
 _BOX_GRID = 96
 
 
@@ -112,21 +116,32 @@ class NerfstudioField:
     # ------------------------------------------------------------------ foreground
     @torch.no_grad()
     def _foreground(self) -> tuple[torch.Tensor, bool, str]:
+        from scipy import ndimage
+
         r = _BOX_GRID
         axis = (torch.arange(r, dtype=torch.float32) + 0.5) / r * 2.0 - 1.0
         grid = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
         sigma = torch.cat([self.network.density(grid[i:i + 2**16]) for i in range(0, grid.shape[0], 2**16)])
-        occupied = (sigma > BOX_DENSITY).reshape(r, r, r)
+        sigma = sigma.reshape(r, r, r).numpy()
+        occupied = sigma > BOX_DENSITY
         require(bool(occupied.any()), "the nerfstudio field has no density above "
                                       f"{BOX_DENSITY} anywhere in its scene box: an untrained or empty run")
-        idx = torch.nonzero(occupied)
+        # floaters: space no training ray constrained holds small blobs of density; they neither make the
+        # scene unbounded nor stretch its box (the nerfstudio fixture: 80 blobs, each under 0.01% of the mass)
+        labels, count = ndimage.label(occupied)
+        mass = np.asarray(ndimage.sum(sigma, labels, np.arange(1, count + 1)))
+        keep = np.flatnonzero(mass >= FLOATER_MASS_FRACTION * mass.max()) + 1
+        idx = torch.from_numpy(np.argwhere(np.isin(labels, keep)))
         cell = 2.0 / r
         lo = (-1.0 + (idx.min(0).values - 1).clamp(min=0) * cell)
         hi = (-1.0 + (idx.max(0).values + 2).clamp(max=r) * cell)
         touches = bool((idx.min(0).values == 0).any() or (idx.max(0).values == r - 1).any())
+        dropped = count - len(keep)
         reason = (f"density above {BOX_DENSITY} per nerfstudio unit on a {r}^3 grid over the scene box"
+                  + (f", without {dropped} floater{'s' if dropped != 1 else ''} (blobs under "
+                     f"{100 * FLOATER_MASS_FRACTION:g}% of the largest one's density mass)" if dropped else "")
                   + ("; it reaches the box's faces: content beyond goes to the skyboxes" if touches else ""))
-        return self.from_nerfstudio_box(lo, hi).float(), touches, reason
+        return self.from_nerfstudio_box(lo.double(), hi.double()).float(), touches, reason
 
     def __repr__(self) -> str:
         s = self.settings

@@ -41,6 +41,13 @@ def shell_budget(face_budget: int) -> int:
 #: Truncation of the fused depth SDF in voxels: beyond the 4-voxel fringe offsets ``marching.outward_levels``
 #: tries, so those levels stay inside the fused values' range.
 FUSION_TRUNCATION_VOXELS = 6.0
+#: A density field's level set whose mesh misses more than this fraction of the opaque training pixels (teacher
+#: opacity >= 0.5, :data:`HOLE_INSET_PX` inside the opaque region, near the mesh's coverage) is perforated: the fused surface depths are meshed as well and the
+#: one that misses less is kept. The nerfstudio fixture's level set at ln2 / step missed most of the plate and
+#: half the bunny (11.5% holes, 15.4 dB); its fused depths: 0.7% holes, 30.0 dB.
+LEVEL_SET_MAX_MISSED = 0.02
+#: Pixels inside the opaque region that count for that test: holes, not the silhouette's rim.
+HOLE_INSET_PX = 2
 
 
 @dataclass
@@ -197,8 +204,28 @@ def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, 
         surface = attempt(fusion)
         surface.mesh.stats["level_set_unwrap_failure"] = str(failure)
         surface.trial.stats["level_set_unwrap_failure"] = str(failure)
+    else:
+        if fusion is not None:
+            surface = _unless_perforated(surface, attempt, fusion, train_cameras, field_depth[2])
     surface.mesh.stats["seconds_surface"] = time.perf_counter() - t_start
     return surface
+
+
+def _unless_perforated(surface: Surface, attempt, fusion, cameras, opacities) -> Surface:
+    """``surface`` (a density field's level set), or its fused-depth surface when the level set misses more
+    than :data:`LEVEL_SET_MAX_MISSED` of the opaque training pixels and the fused one misses fewer."""
+    missed = missed_opaque_fraction(surface.mesh, cameras, opacities, threshold=0.5, inset=HOLE_INSET_PX)
+    for mesh in (surface.mesh, surface.trial):
+        mesh.stats["level_set_missed"] = missed
+    if missed <= LEVEL_SET_MAX_MISSED:
+        return surface
+    fused = attempt(fusion)
+    fused_missed = missed_opaque_fraction(fused.mesh, cameras, opacities, threshold=0.5, inset=HOLE_INSET_PX)
+    keep = fused if fused_missed < missed else surface
+    for mesh in (keep.mesh, keep.trial):
+        mesh.stats.update(level_set_missed=missed, fused_depths_missed=fused_missed,
+                          surface_from_depths=keep is fused)
+    return keep
 
 
 def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float = 120.0,

@@ -62,7 +62,7 @@ def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, sce
 
 
 def missed_opaque_fraction(mesh: MeshData, cameras, opacity: np.ndarray, *, threshold: float = 0.05,
-                           stride: int = 4, reach: int = 6) -> float:
+                           stride: int = 4, reach: int = 6, inset: int = 0) -> float:
     """Fraction of the field's fringe pixels whose ray misses ``mesh``.
 
     Fringe pixels: pixels where the field is at least ``threshold`` opaque and that lie within ``reach``
@@ -74,6 +74,8 @@ def missed_opaque_fraction(mesh: MeshData, cameras, opacity: np.ndarray, *, thre
         cameras: ``Cameras`` (N views, W x H).
         opacity: (N, H, W) the field's opacity of those views (the teacher's accumulated alpha).
         stride: only every ``stride``-th pixel row and column is cast (pixel-centre rays, as rendered).
+        inset: count only pixels at least this many (full-resolution) pixels inside the opaque region: holes in
+            a surface, not its silhouette's rim (where a mesh at a density level sits a little inside).
     Returns:
         missed / fringe pixels over the strided pixels (0.0 when there are none).
     """
@@ -82,7 +84,10 @@ def missed_opaque_fraction(mesh: MeshData, cameras, opacity: np.ndarray, *, thre
     scene = _raycasting_scene(mesh)
     missed = wanted = 0
     for i in range(len(cameras)):
-        want = np.asarray(opacity[i])[::stride, ::stride] >= threshold
+        opaque = np.asarray(opacity[i]) >= threshold
+        if inset:
+            opaque = ndimage.binary_erosion(opaque, iterations=int(inset))
+        want = opaque[::stride, ::stride]
         if not want.any():
             continue
         o, d = cameras.rays(i)

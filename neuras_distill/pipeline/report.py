@@ -77,6 +77,9 @@ def summary_table(rep: dict) -> str:
         ("texture", "-", f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
                          f"{rep['codebook_size']} codes"),
         ("bundle size", "-", _mb(rep.get("bundle_bytes")) + ratio),
+        *([("peak memory (run)", f"{rep['peak_rss_mb']:.0f} MB resident"
+            + (f", {rep['peak_gpu_mb']:.0f} MB on the GPU" if rep.get("peak_gpu_mb") else ""), "")]
+          if rep.get("peak_rss_mb") else []),
     ]
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     lines = ["", "  ".join(c.ljust(widths[i]) for i, c in enumerate(rows[0])),

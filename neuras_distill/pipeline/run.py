@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from ..config import DistillConfig, load_config
-from ..device import OUT_OF_MEMORY, out_of_memory_message
+from ..device import OUT_OF_MEMORY, out_of_memory_message, peak_memory_mb
 from ..errors import BadInputError, require
 from ..render.cameras import Cameras
 from . import report as report_mod, stages
@@ -230,6 +230,8 @@ def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, 
                        stability=stability, source=source, gl_info=gl_info(), device=device)
     rep["views"]["cameras"] = camera_origin
     rep["processes"] = pool.nproc if pool is not None else 1
+    rep["scene_aabb"] = [[float(v) for v in row] for row in torch.as_tensor(field.aabb).double().reshape(2, 3)]
+    rep.update(peak_memory_mb(device))
     rep["resumed"] = {"stages": list(cache.reused) if cache is not None else [],
                       "from_step": distilled.log.get("resumed_from_step")}
     if cache is not None:

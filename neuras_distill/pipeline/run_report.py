@@ -64,6 +64,7 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "ssim_per_view": ev.quality["ssim_per_view"],
         **ev.fidelity,  # flip, psnr_interior, psnr_silhouette, hole_fraction (+ _per_view), silhouette_band_px, crops
         "fidelity_seconds": ev.fidelity_seconds,
+        "evaluate_seconds": {k: round(v, 3) for k, v in ev.part_seconds.items()},
         "distill_seconds": None,
         "stage_seconds": ctx.clock.seconds,
         "mesh_faces": mesh.num_faces,

@@ -12,7 +12,7 @@ coordinates; G-buffers are rasterized relative to the run's origin (``pipeline.r
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -241,7 +241,8 @@ class Evaluation:
         fidelity_seconds: its time. ablation: PSNR with and without skyboxes (None without them).
         timing: ``BundleRenderer.time_frames``; silhouette_blend: whether the player ran the soft-silhouette
         pass; plain: the plain-texture baseline; runtime_points: the field's
-        error against run time; extrapolation and extra_views: lane-shifted views (None / {} without them).
+        error against run time; extrapolation and extra_views: lane-shifted views (None / {} without them);
+        part_seconds: where the stage's time went.
     """
 
     field_views: FieldViews
@@ -258,3 +259,5 @@ class Evaluation:
     runtime_points: list
     extrapolation: dict | None
     extra_views: dict
+    part_seconds: dict = field(default_factory=dict)
+    """Wall seconds of the stage's parts (field views, bundle renders, parity, fidelity, timing, ...)."""

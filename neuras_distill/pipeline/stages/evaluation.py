@@ -28,6 +28,13 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
     """Everything the report measures; the field's held-out renders are stored as ``field_views``."""
     cfg, test, origin = ctx.cfg, views.test, training.origin
     ctx.clock.start("evaluate", f"{len(test)} held-out views at {test.width}x{test.height}: field vs bundle")
+    parts: dict[str, float] = {}
+    mark = [time.perf_counter()]
+
+    def lap(name: str) -> None:
+        now = time.perf_counter()
+        parts[name] = now - mark[0]
+        mark[0] = now
 
     def render_held_out() -> FieldViews:
         out = evaluate.render_field_views(teacher, test, ctx.progress_printer("field (held-out)"))
@@ -36,9 +43,11 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
     key = digest("field_views", ctx.fingerprint, test.to_json(), settings(cfg.teacher))
     field_views = ctx.cached("field_views", key, render_held_out, FieldViews.save, FieldViews.load)
     field_images = field_views.images
+    lap("field_views")
     player = BundleRenderer(bundle)
     bundle_images = [player.render(test, i) for i in range(len(test))]
     quality = evaluate.compare(bundle_images, field_images)
+    lap("bundle_views")
     cull = cfg.geometry.cull_back_faces
     local_test = shift_cameras(test, origin)
     parity = evaluate.gl_torch_parity(distilled.model, training.mesh, local_test, bundle_images[0],
@@ -46,11 +55,13 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
                                       lambda m, c: rasterize_gbuffer(m, c, cull_back_faces=cull),
                                       skybox=distilled.skybox, world_cameras=test,
                                       silhouette_blend=player.silhouette_blend)
+    lap("parity")
     t_fid = time.perf_counter()
     coverages = evaluate.bundle_coverage(lambda c: rasterize_gbuffer(training.mesh, c, cull_back_faces=cull),
                                          local_test)
     fidelity, flip_maps = evaluate.fidelity(bundle_images, field_images, field_views.opacities, coverages)
     fidelity_seconds = time.perf_counter() - t_fid
+    lap("fidelity")
     ablation = None
     if distilled.skybox is not None and cfg.skybox.ablation:
         no_sky = evaluate.compare([player.render(test, i, skybox=False) for i in range(len(test))], field_images)
@@ -58,20 +69,25 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
                     "drop_db": quality["psnr"] - no_sky["psnr"],
                     "how": "the same bundle played without its skybox pass; pixels the mesh misses get the mean "
                            "colour of the training pixels it misses"}
+    lap("ablation")
     timing = player.time_frames(test, warmup=5, frames=cfg.eval.fps_frames)
+    lap("bundle_timing")
     plain = evaluate.plain_texture_baseline(distilled.model, bundle, training.gbuffer, training.dirs, test,
                                             field_images, bundle_images, coverages, cfg.eval.fps_frames)
+    lap("plain_texture")
     # a density field's occupancy grid does not depend on the step count: the curve's renderers reuse the
     # teacher's instead of building their own (for the plain-PyTorch nerfacto field each build cost 23 s)
     grid = teacher.occupancy if ctx.field.kind == "density" and teacher.occupancy is not None else "auto"
     points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(ctx.field, num_steps=s, occupancy=grid), test,
                                        2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
                                        cfg.teacher.num_steps, player)
+    lap("error_vs_runtime")
     extrapolation, extra_views = lane_shift_views(ctx.field, teacher, player, test)
+    lap("lane_shifts")
     ctx.clock.done(psnr=quality["psnr"], ssim=quality["ssim"], parity_psnr=parity, flip=fidelity["flip"],
                    hole_fraction=fidelity["hole_fraction"], fidelity_seconds=fidelity_seconds)
     return Evaluation(field_views, bundle_images, quality, parity, fidelity, flip_maps, fidelity_seconds, ablation,
-                      timing, player.silhouette_blend, plain, points, extrapolation, extra_views)
+                      timing, player.silhouette_blend, plain, points, extrapolation, extra_views, parts)
 
 
 def lane_shift_views(field: Field, teacher: VolumeRenderer, player: BundleRenderer, test: Cameras,

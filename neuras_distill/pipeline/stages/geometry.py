@@ -39,6 +39,7 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
                              f"automatic) or lower --face-budget")
     if auto_side:
         _record_atlas_side(ctx, tex_res, density)
+    _record_surface_source(ctx, mesh.stats)
     culled = int(mesh.stats.get("culled_faces", 0))
     if culled:
         ctx.decisions.leave_out("unseen faces", f"{culled} faces seen by no training camera were culled before "
@@ -89,6 +90,21 @@ def choose_atlas_side(ctx: RunContext, surface: Surface, views: CameraSplit, pla
     samples = plan.max_steps * plan.samples_per_step
     budget = decisions.training_budget_resolution(samples, info["uv_area"])
     return min(side, budget), dict(info, chosen=min(side, budget), budget=budget, samples=samples)
+
+
+def _record_surface_source(ctx: RunContext, stats: dict) -> None:
+    """A density field's mesh from its fused surface depths instead of its level set, and why."""
+    if "fused_depths_missed" not in stats:
+        return
+    missed, fused = 100 * stats["level_set_missed"], 100 * stats["fused_depths_missed"]
+    if stats.get("surface_from_depths"):
+        ctx.decisions.keep("surface from fused depths", f"the density's level set missed {missed:.1f}% of the "
+                           f"opaque training pixels (a perforated surface); the teacher's fused surface depths "
+                           f"miss {fused:.1f}%", level_set_missed=missed, fused_depths_missed=fused)
+    else:
+        ctx.decisions.leave_out("surface from fused depths", f"the level set missed {missed:.1f}% of the opaque "
+                                f"training pixels but the fused depths missed more ({fused:.1f}%)",
+                                level_set_missed=missed, fused_depths_missed=fused)
 
 
 def _record_atlas_side(ctx: RunContext, tex_res: int, density: dict) -> None:

@@ -24,8 +24,17 @@ def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
     cfg = ctx.cfg
     ctx.clock.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
     train_full, test_full = cameras.split(cfg.cameras.test_every)
-    train = train_full.resized(cfg.teacher.train_width)
-    test = test_full.resized(cfg.eval.width) if cfg.eval.width else test_full    # 0: the cameras' own size
+    train_width = decisions.capped_width(cfg.teacher.train_width, train_full.width)
+    eval_width = decisions.capped_width(cfg.eval.width, test_full.width) if cfg.eval.width else test_full.width
+    if (train_width, eval_width) != (cfg.teacher.train_width, cfg.eval.width or test_full.width):
+        ctx.decisions.leave_out(
+            "renders beyond the cameras' resolution",
+            f"the cameras are {test_full.width} pixels wide: the teacher renders at {train_width} and the held-out "
+            f"frames at {eval_width} pixels (at most {decisions.MAX_UPSCALE:g}x the cameras' width), not the "
+            f"configured {cfg.teacher.train_width} / {cfg.eval.width}", train_width=train_width,
+            eval_width=eval_width)
+    train = train_full.resized(train_width)
+    test = test_full.resized(eval_width) if cfg.eval.width else test_full    # 0: the cameras' own size
     if ctx.root is not None:
         (ctx.root / "cameras.json").write_text(json.dumps({"train": train.to_json(), "test": test.to_json()}))
     sky_layers = None
