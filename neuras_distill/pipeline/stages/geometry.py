@@ -26,12 +26,27 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     surface = extract(ctx, views, teacher, enclose)
     auto_side = ctx.cfg.texture.resolution == 0
     side, density = choose_atlas_side(ctx, surface, views, plan) if auto_side else (ctx.cfg.texture.resolution, {})
-    key = digest("geometry", ctx.keys["surface"], side)
-    result = ctx.cached("geometry", key,
-                        lambda: GeometryResult(unwrap_surface(surface, side, unwrap_timeout_s=g.unwrap_timeout_s),
-                                               density),
-                        GeometryResult.save, GeometryResult.load)
-    mesh = result.mesh
+    key = digest("geometry", ctx.keys["surface"], side, decisions.MIN_TEXEL_YIELD if auto_side else None)
+
+    def unwrap_at_side() -> GeometryResult:
+        mesh = unwrap_surface(surface, side, unwrap_timeout_s=g.unwrap_timeout_s)
+        if not auto_side:
+            return GeometryResult(mesh, density)
+        # the side was chosen from the trial unwrap's uv area; many small charts lose more of a small atlas to
+        # their padding: unwrap once more at a larger side when too few texels hold surface
+        wanted = density["pixels"] / decisions.PIXELS_PER_TEXEL ** 2
+        used = mesh.uv_area() * side ** 2
+        grown = decisions.side_for_texels(side, used, wanted, hi=min(ctx.cfg.texture.max_resolution,
+                                                                     density.get("budget", side)))
+        if grown == side:
+            return GeometryResult(mesh, density)
+        regrown = unwrap_surface(surface, grown, unwrap_timeout_s=g.unwrap_timeout_s)
+        info = dict(density, chosen=grown, texel_yield=used / wanted, regrown_from=side,
+                    texel_yield_after=regrown.uv_area() * grown ** 2 / wanted)
+        return GeometryResult(regrown, info)
+
+    result = ctx.cached("geometry", key, unwrap_at_side, GeometryResult.save, GeometryResult.load)
+    mesh, density = result.mesh, result.density if auto_side else density
     tex_res, charts = int(mesh.stats["uv_resolution"]), int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
     require(tex_res >= need, f"a {tex_res}x{tex_res} texture is too small for this mesh: its {charts} UV charts "
@@ -39,6 +54,13 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
                              f"automatic) or lower --face-budget")
     if auto_side:
         _record_atlas_side(ctx, tex_res, density)
+        if density.get("regrown_from"):
+            ctx.decisions.keep(
+                "a larger atlas for small charts",
+                f"at {density['regrown_from']}x{density['regrown_from']} the {charts} UV charts' padding left "
+                f"{100 * density['texel_yield']:.0f}% of the texels the surface needs; unwrapped again at "
+                f"{tex_res}x{tex_res} ({100 * density['texel_yield_after']:.0f}%)",
+                side=tex_res, texel_yield=density["texel_yield"], texel_yield_after=density["texel_yield_after"])
     _record_surface_source(ctx, mesh.stats)
     culled = int(mesh.stats.get("culled_faces", 0))
     if culled:
