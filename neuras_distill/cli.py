@@ -82,6 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--appearance", default="mean",
                    help="appearance embedding: mean (nerfstudio's evaluation, default), zeros, or a training "
                         "image's index")
+    p.add_argument("--image-size", default=None, metavar="WxH",
+                   help="image size of an ns-export cameras file given to --cameras (it stores poses only)")
+    p.add_argument("--focal", type=float, default=None, metavar="PIXELS",
+                   help="focal length in pixels of an ns-export cameras file given to --cameras")
     _add_run_options(p)
 
     p = sub.add_parser("from-sdf", help="a NeuS / hash-grid NeuS checkpoint (.pth / .ckpt) through the pipeline")
@@ -252,7 +256,29 @@ def _nerfstudio_inputs(args) -> tuple:
                      else _int(args.appearance, "--appearance")}
     if args.foreground_box is not None:
         options["foreground_box"] = _parse_box(args.foreground_box)
-    return _checkpoint_inputs(args, str(run / "config.yml" if run.is_dir() else run), "nerfstudio", options)
+    exported = args.cameras if args.cameras is not None and _is_json_list(args.cameras) else None
+    if exported is not None:            # ns-export poses (nerfstudio's frame): the loaded field moves them
+        args.cameras = None
+    field, cameras, cfg = _checkpoint_inputs(args, str(run / "config.yml" if run.is_dir() else run), "nerfstudio",
+                                             options)
+    if exported is not None:
+        args.cameras = exported
+        width = height = None
+        if args.image_size is not None:
+            w, _, h = args.image_size.lower().partition("x")
+            width, height = _int(w, "--image-size"), _int(h, "--image-size")
+        cameras = field.exported_cameras(exported, width, height, args.focal)
+    return field, cameras, cfg
+
+
+def _is_json_list(path) -> bool:
+    """Whether ``path`` is a JSON file holding a list (``ns-export cameras`` output, not a transforms.json)."""
+    import json
+
+    try:
+        return isinstance(json.loads(Path(path).read_text()), list)
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
 
 
 #: The commands that run the pipeline, and how each builds its (field, cameras or None, config).

@@ -314,3 +314,30 @@ def test_a_nerfacto_run_distills_end_to_end(tmp_path):
     rep = result.report
     assert rep["psnr"] > 20.0 and rep["speedup"] > 1.0, (rep["psnr"], rep["speedup"])
     assert rep["views"]["test"] == 2 and (tmp_path / "run" / "bundle" / "manifest.json").is_file()
+
+
+def test_ns_export_camera_files_are_moved_into_the_datasets_frame(tmp_path):
+    """``ns-export cameras`` writes poses in nerfstudio's frame without intrinsics: with --image-size and --focal
+    they become the dataset's cameras again."""
+    from neuras_distill.cli import build_parser, run_inputs
+    from neuras_distill.render.cameras import Cameras
+
+    data = Cameras.from_transforms(RUN / "transforms.json")
+    dp = json.loads((RUN / "dataparser_transforms.json").read_text())
+    t, scale = np.asarray(dp["transform"]), float(dp["scale"])
+    frames = []
+    for c2w in data.c2w.double().numpy():
+        pose = np.concatenate([t[:, :3] @ c2w[:3, :3], (scale * (t[:, :3] @ c2w[:3, 3] + t[:, 3]))[:, None]], 1)
+        frames.append({"file_path": "images/x.png", "transform": pose.tolist()})
+    exported = tmp_path / "transforms_train.json"
+    exported.write_text(json.dumps(frames))
+    focal = float(data.fx[0])
+    args = build_parser().parse_args(["from-nerfstudio", str(RUN), "--cameras", str(exported), "--image-size",
+                                      f"{data.width}x{data.height}", "--focal", str(focal)])
+    _, cams, _ = run_inputs(args)
+    assert len(cams) == len(data) and (cams.width, cams.height) == (data.width, data.height)
+    assert torch.allclose(cams.c2w, data.c2w, atol=1e-4)
+    assert torch.allclose(cams.fx, data.fx) and torch.allclose(cams.cx, data.cx)
+    args = build_parser().parse_args(["from-nerfstudio", str(RUN), "--cameras", str(exported)])
+    with pytest.raises(BadInputError, match="poses only; give the images' size and focal length"):
+        run_inputs(args)

@@ -113,6 +113,13 @@ class NerfstudioField:
 
         return orbit_framing(self.aabb, n, width, height)
 
+    def exported_cameras(self, path, width: int | None, height: int | None, focal: float | None):
+        """The cameras of an ``ns-export cameras`` file (poses in nerfstudio's frame) in this field's frame, with
+        the given image size and focal length in pixels (:func:`.cameras.exported_cameras`)."""
+        from .cameras import exported_cameras
+
+        return exported_cameras(path, self, width, height, focal)
+
     # ------------------------------------------------------------------ foreground
     @torch.no_grad()
     def _foreground(self) -> tuple[torch.Tensor, bool, str]:
