@@ -202,7 +202,7 @@ def field_device(field: Any) -> torch.device:
 def _ours(value: Any) -> bool:
     """Whether ``value`` is a plain object of this package or its adapters (a field's frame, a wrapped field)."""
     return hasattr(value, "__dict__") and not isinstance(value, type) and \
-        type(value).__module__.split(".")[0] in ("neuras_distill", "adapters")
+        type(value).__module__.split(".")[0] in ("neuras_distill", "neuras_distill_adapters", "adapters")
 
 
 class DeviceField:

@@ -65,7 +65,9 @@ def _modules(obj: Any, seen: set):
     if isinstance(obj, torch.nn.Module):
         yield from obj.modules()
         return
-    if not hasattr(obj, "__dict__") or not type(obj).__module__.split(".")[0] in ("neuras_distill", "adapters"):
+    from .device import _ours
+
+    if not _ours(obj):
         return
     for value in vars(obj).values():
         if isinstance(value, (list, tuple)):
