@@ -74,7 +74,7 @@ def test_config_yml_is_read_as_data_with_its_python_tags():
     assert config["data"] == "data/bunny" and config["relative_model_dir"] == "nerfstudio_models"
     s = nerfacto_settings(config)
     assert (s.implementation, s.log2_hashmap_size, s.num_levels, s.average_init_density, s.background_color) == (
-        "torch", 14, 16, 0.01, "white")
+        "torch", 13, 16, 0.01, "white")
     assert s.notes == []
 
 
@@ -152,7 +152,7 @@ def _copy_run(tmp_path) -> Path:
 def test_a_missing_checkpoint_and_mismatched_shapes_are_refused(tmp_path):
     run = _copy_run(tmp_path)
     cfg = (run / "config.yml").read_text()
-    (run / "config.yml").write_text(cfg.replace("log2_hashmap_size: 14", "log2_hashmap_size: 15"))
+    (run / "config.yml").write_text(cfg.replace("log2_hashmap_size: 13", "log2_hashmap_size: 14"))
     with pytest.raises(BadInputError, match="config and checkpoint are from different runs"):
         NerfstudioAdapter().load(run)
     for ckpt in (run / "nerfstudio_models").glob("*.ckpt"):
