@@ -1,4 +1,5 @@
-"""Local worker processes that share the field's volume rendering (``--nproc N``; the only torch.distributed user).
+"""Local worker processes that share the field's volume rendering and the training (``--nproc N``; the only
+torch.distributed user).
 
 Rank 0 is the run itself; ranks 1 .. N-1 are processes it spawns, each holding a copy of the field (sent once,
 pickled by ``torch.multiprocessing``, whose tensors travel through shared memory). A render request is
@@ -8,9 +9,12 @@ rank uses ``cpu_count // N`` torch threads while it renders (2 processes of 1 th
 machine), rank 0 restores its own count afterwards. The group is gloo over TCP on 127.0.0.1, so the same
 protocol would run across machines under ``torchrun`` once the field can be rebuilt there.
 
-What is split: the teacher's renders of the training views (``stages.teacher``). What is not: the held-out field
-frames (they are timed one at a time, as one process, so the field's FPS stays the fair "before" figure) and
-training (one process; the issue's all-reduce of gradients is not built yet).
+What is split: the teacher's renders of the training views (``stages.teacher``) and training
+(:meth:`RenderPool.fit`: data-parallel, every rank runs :func:`~neuras_distill.neural.train.fit` on its share of
+each batch and the gradients are summed, ``neural.data_parallel``). The training arrays (G-buffers, teacher
+images) and a copy of the model reach the workers once per fit through a ``torch.multiprocessing`` queue, i.e.
+shared memory, not the gloo socket. What is not split: the held-out field frames (they are timed one at a time,
+as one process, so the field's FPS stays the fair "before" figure).
 
 Failures: a worker that dies or a collective that waits longer than ``timeout_s`` ends the run with one line
 (:class:`~neuras_distill.errors.BadInputError`, exit 2) that names ``--nproc 1`` as the way round;
@@ -85,8 +89,52 @@ def _render_share(field, request: RenderRequest, rank: int, world: int) -> list[
     return out
 
 
-def _worker(index: int, field, world: int, port: int, timeout_s: float) -> None:
-    """Ranks 1 .. world-1: join the group, then serve render requests until told to stop."""
+@dataclass
+class FitRequest:
+    """Tells the workers to take a :class:`FitPayload` from their queue and train with rank 0."""
+
+
+@dataclass
+class FitPayload:
+    """What a worker trains on: a copy of the model (and skybox), the arrays of
+    :func:`~neuras_distill.neural.train.fit` as tensors (shared memory), its keyword arguments, and the
+    training checkpoint's stored state when rank 0 resumes from one."""
+    model: object
+    skybox: object
+    arrays: dict
+    kwargs: dict
+    stored: dict | None
+
+
+class _StoredState:
+    """The part of ``TrainCheckpoint`` a worker's ``fit`` uses: rank 0's stored state, never due, never saved."""
+
+    saved = 0
+
+    def __init__(self, state):
+        self._state = state
+
+    def load(self):
+        return self._state
+
+    def due(self) -> bool:
+        return False
+
+
+def _fit_share(payload: FitPayload, rank: int, world: int) -> None:
+    """Rank ``rank``'s part of a data-parallel fit (its model copy is dropped afterwards)."""
+    from .neural.data_parallel import GradientExchange
+    from .neural.train import fit
+
+    a = payload.arrays
+    fit(payload.model, a["uv"], a["coverage"], a["dirs"], a["targets"], skybox=payload.skybox,
+        origins=a.get("origins"), sky_pixels=a.get("sky_pixels"), progress=False,
+        checkpoint=_StoredState(payload.stored) if payload.stored is not None else None,
+        exchange=GradientExchange(rank, world), **payload.kwargs)
+
+
+def _worker(index: int, field, world: int, port: int, timeout_s: float, queues) -> None:
+    """Ranks 1 .. world-1: join the group, then serve render and fit requests until told to stop."""
     import torch.distributed as dist
 
     rank = index + 1
@@ -101,6 +149,9 @@ def _worker(index: int, field, world: int, port: int, timeout_s: float) -> None:
             request = box[0]
             if request is None:
                 break
+            if isinstance(request, FitRequest):
+                _fit_share(queues[index].get(), rank, world)
+                continue
             with torch.no_grad():
                 share = _render_share(field, request, rank, world)
             dist.gather_object(share, None, dst=0)
@@ -123,10 +174,11 @@ class RenderPool:
         require(self.nproc >= 2, "a RenderPool needs at least 2 processes")
         self.timeout_s = float(timeout_s)
         port = _free_port()
+        self._queues = [mp.get_context("spawn").SimpleQueue() for _ in range(self.nproc - 1)]
         self._store = dist.TCPStore("127.0.0.1", port, self.nproc, is_master=True,
                                     timeout=timedelta(seconds=self.timeout_s), wait_for_workers=False)
         try:
-            self._context = mp.start_processes(_worker, args=(field, self.nproc, port, self.timeout_s),
+            self._context = mp.start_processes(_worker, args=(field, self.nproc, port, self.timeout_s, self._queues),
                                                nprocs=self.nproc - 1, join=False, start_method="spawn")
         except Exception as exc:   # the field could not be sent (e.g. it holds a local function)
             raise BadInputError(f"--nproc {self.nproc}: the field cannot be sent to worker processes "
@@ -197,6 +249,40 @@ class RenderPool:
             progress(len(cameras), len(cameras))
         return renders
 
+    def fit(self, model, uv, coverage, dirs, targets, *, skybox=None, origins=None, sky_pixels=None,
+            checkpoint=None, progress: bool = True, **kwargs):
+        """:func:`neuras_distill.neural.train.fit` on every rank at once, each computing its share of every
+        batch (the arguments are ``fit``'s; the G-buffers and targets stay on the CPU). Returns rank 0's
+        ``TrainLog``; ``model`` and ``skybox`` are trained in place as by ``fit``."""
+        import copy
+
+        from .neural.data_parallel import GradientExchange
+        from .neural.train import fit
+
+        kwargs = dict(kwargs)
+        kwargs["num_threads"] = threads_per_process(self.nproc)
+        require(kwargs.get("device") in (None, "cpu") or torch.device(kwargs["device"]).type == "cpu",
+                f"--nproc {self.nproc} trains on CPU processes; on {kwargs.get('device')} use --nproc 1")
+        arrays = {"uv": uv, "coverage": coverage, "dirs": dirs, "targets": targets}
+        if origins is not None:
+            arrays["origins"] = origins
+        if sky_pixels is not None:
+            arrays["sky_pixels"] = sky_pixels
+        shared = {k: _shared_tensor(v) for k, v in arrays.items()}
+        stored = checkpoint.load() if checkpoint is not None else None
+        try:
+            self._dist.broadcast_object_list([FitRequest()], src=0)
+            for queue in self._queues:
+                queue.put(FitPayload(copy.deepcopy(model), copy.deepcopy(skybox), shared, kwargs, stored))
+            return fit(model, uv, coverage, dirs, targets, skybox=skybox, origins=origins, sky_pixels=sky_pixels,
+                       checkpoint=checkpoint, progress=progress, exchange=GradientExchange(0, self.nproc),
+                       **kwargs)
+        except RuntimeError as exc:
+            self._kill()
+            raise BadInputError(f"--nproc {self.nproc}: a worker process failed or did not answer within "
+                                f"{self.timeout_s:.0f} s while training ({str(exc).splitlines()[0][:160]}); "
+                                f"run with --nproc 1") from None
+
     def close(self) -> None:
         """Tell the workers to stop, leave the group and wait for them."""
         if getattr(self, "_dist", None) is None:
@@ -227,6 +313,12 @@ class RenderPool:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _shared_tensor(array) -> torch.Tensor:
+    """A torch-owned copy of ``array`` (numpy or tensor, on the host) that the queue moves to shared memory."""
+    t = array if torch.is_tensor(array) else torch.from_numpy(np.ascontiguousarray(array))
+    return t.detach().cpu().clone()
 
 
 def renderer_settings(renderer) -> dict:

@@ -108,3 +108,55 @@ def test_cli_nproc_runs_and_refuses(tmp_path, capsys):
     assert code == 0
     rep = json.loads((out / "report.json").read_text())
     assert rep["processes"] == 2 and rep["psnr"] > 28.0, (rep["processes"], rep["psnr"])
+
+
+def _trained_together(nproc: int, **kwargs):
+    """A small texture model trained on a synthetic G-buffer by ``nproc`` processes (1: plain ``fit``)."""
+    from test_neural import synthetic_gbuffer
+
+    from neuras_distill.neural.model import NeuralTextureModel
+    from neuras_distill.neural.train import fit
+
+    data = synthetic_gbuffer(n=3, res=24)
+    torch.manual_seed(0)
+    model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=32, hidden=16, use_vq=True)
+    start = {k: v.clone() for k, v in model.state_dict().items()}
+    args = dict(steps=30, batch_patches=6, patch=8, progress=False, **kwargs)
+    if nproc == 1:
+        log = fit(model, *data, num_threads=1, **args)
+    else:
+        with RenderPool(SphereSDF(radius=0.5), nproc, timeout_s=120) as pool:
+            log = pool.fit(model, *data, **args)
+    return model, log, start
+
+
+def test_two_processes_train_the_model_one_process_trains():
+    """Data-parallel fit: each rank computes half of every batch, gradients (the atlas's sparse rows included)
+    are summed, so 2 gloo processes end with 1 process's model up to the order of float additions (stated
+    tolerance 1e-4 after 30 Adam steps; measured ~1e-7)."""
+    one, log1, start = _trained_together(1)
+    two, log2, _ = _trained_together(2)
+    assert (log1.processes, log2.processes) == (1, 2) and log1.steps == log2.steps == 30
+    assert log2.pixels_per_second_per_process > 0
+    a, b = one.state_dict(), two.state_dict()
+    assert a.keys() == b.keys()
+    for k in a:
+        if a[k].dtype == torch.bool:
+            assert torch.equal(a[k], b[k]), k               # touched texels: the union of both ranks'
+        elif a[k].is_floating_point():
+            assert float((a[k] - b[k]).abs().max()) < 1e-4, (k, float((a[k] - b[k]).abs().max()))
+    moved = float((a["texture.data"] - start["texture.data"]).abs().max())
+    assert moved > 0.05, moved                               # training did change the atlas
+    assert abs(log1.entries[-1]["loss"] - log2.entries[-1]["loss"]) < 1e-4   # the logged loss is the whole batch's
+
+
+def test_two_processes_under_quantized_training_stay_close():
+    """Quantized from mid-run (vq_warmup 0.5), dead codes restart from each rank's own samples, so the models
+    are no longer equal to one process's; their PSNR on the training data stays within 1 dB of it."""
+    from test_neural import _psnr, synthetic_gbuffer
+
+    data = synthetic_gbuffer(n=3, res=24)
+    one, log1, _ = _trained_together(1, vq_warmup=0.5)
+    two, log2, _ = _trained_together(2, vq_warmup=0.5)
+    assert log1.vq_start_step == log2.vq_start_step == 15
+    assert abs(_psnr(one, *data) - _psnr(two, *data)) < 1.0, (_psnr(one, *data), _psnr(two, *data))

@@ -42,6 +42,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from neuras_distill.neural.data_parallel import GradientExchange
 from neuras_distill.neural.losses import ssim
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.config import TrainConfig
@@ -63,6 +64,8 @@ class TrainLog:
         vq_start_step: step at which quantization began (None without VQ).
         vq_stats: final quantizer stats (perplexity, used_fraction, ...), {} without VQ.
         touched_fraction: fraction of texels a training sample touched; filled_texels: texels gutter-filled.
+        processes: ranks that trained together (``exchange``); pixels_per_second_per_process: batch pixels
+            (patches x patch²) per second of the loop, divided by ``processes``.
     """
 
     entries: list = field(default_factory=list)
@@ -77,6 +80,8 @@ class TrainLog:
     sky_touched_fraction: float | None = None
     resumed_from_step: int | None = None
     checkpoints_written: int = 0
+    processes: int = 1
+    pixels_per_second_per_process: float = 0.0
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -98,7 +103,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         lr_final_ratio: float = 0.1,
         time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
         seed: int = _TRAIN.seed, num_threads: int | None = None, skybox=None, origins=None,
-        sky_pixels=None, checkpoint=None, device: torch.device | str | None = None) -> TrainLog:
+        sky_pixels=None, checkpoint=None, device: torch.device | str | None = None,
+        exchange: GradientExchange | None = None) -> TrainLog:
     """Train ``model`` on teacher images.
 
     Args:
@@ -122,8 +128,12 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             state when it has one (``TrainLog.resumed_from_step``) and saves its state when it is due.
         device: where the model (and skybox) train; None: where the model is. The G-buffers and targets stay in
             host memory: each step's batch is drawn there (same random numbers on every device) and sent over.
+        exchange: this process's :class:`~neuras_distill.neural.data_parallel.GradientExchange` when ``fit`` runs
+            on several ranks at once (every rank with the same model, arrays and seed): each computes its share
+            of every batch and the gradients are summed; None: one process.
     Returns:
-        :class:`TrainLog`. The model (and skybox) is left on the host in eval mode with untouched texels filled.
+        :class:`TrainLog`. The model (and skybox) is left on the host in eval mode with untouched texels filled
+        (on rank 0; the other ranks of an ``exchange`` return right after the loop, their model unquantized).
     """
     if steps < 1:
         raise BadInputError(f"fit: steps must be >= 1, got {steps}")
@@ -195,9 +205,12 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         step = _restore(stored, model, skybox, models, opt_tex, opt, gen, log)
         t0 -= float(stored["elapsed"])
         bar.update(step)
+    shared_clock = float(stored["elapsed"]) if stored is not None else 0.0   # rank 0's, one step late
+    sparse_params = tex_params if model.sparse_grad else []
+    dense_params = [q for g in dense_groups for q in g["params"]] + ([] if model.sparse_grad else tex_params)
     try:
         while step < steps:
-            elapsed = time.perf_counter() - t0
+            elapsed = time.perf_counter() - t0 if exchange is None else shared_clock
             frac = step / steps
             if time_budget_s is not None:
                 if elapsed >= time_budget_s:
@@ -206,7 +219,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
                 frac = max(frac, elapsed / time_budget_s)
             if model.use_vq and not model.quantizing and vq_warmup < 1.0 and frac >= vq_warmup:
                 for m_ in models:
-                    m_.start_vq()
+                    _start_vq(m_, exchange)
                 log.vq_start_step = step
             decay = lr_final_ratio ** min(frac, 1.0)
             for o, bases in zip((opt_tex, opt), base_lrs):
@@ -222,12 +235,15 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             top = (cy - p // 2).clamp(0, h - p)
             left = (cx - p // 2).clamp(0, w - p)
             pix = (view[:, None, None] * (h * w) + (top[:, None, None] + dy) * w + (left[:, None, None] + dx))
-            pix = pix.reshape(-1)
+            # counts of the whole batch (every rank's share): each rank's terms are normalised by them
+            whole = _BatchCounts.of(cov_f[pix.reshape(-1)], None if sky_f is None else sky_f[pix.reshape(-1)])
+            mine = exchange.share(batch_patches) if exchange is not None else torch.arange(batch_patches)
+            pix, view = pix[mine].reshape(-1), view[mine]
             m, tgt = cov_f[pix].to(device), tgt_f[pix].to(device)
             uv_b, dirs_b = uv_f[pix].to(device), dirs_f[pix].to(device)
             sel = torch.nonzero(m).flatten()
             rgb, aux = model(uv_b[sel], dirs_b[sel])
-            vq_loss = aux["vq_loss"]
+            vq_loss = aux["vq_loss"] * (sel.numel() / max(whole.mesh, 1))
             if skybox is not None:                    # mesh where covered, sky where allowed, the rest left out
                 learn = ~m & sky_f[pix].to(device)
                 sky = torch.nonzero(learn).flatten()
@@ -238,20 +254,28 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
                 m = m | learn
                 sel = torch.nonzero(m).flatten()
                 rgb = full[sel]
-                vq_loss = vq_loss + sky_aux["vq_loss"]
-            l2 = torch.mean((rgb - tgt[sel]) ** 2)
+                vq_loss = vq_loss + sky_aux["vq_loss"] * (sky.numel() / max(whole.sky, 1))
+            l2 = torch.sum((rgb - tgt[sel]) ** 2) / (3 * max(whole.learned, 1))   # the batch's mean
             loss = l2 + vq_weight * vq_loss
             if use_ssim:
                 full = tgt.index_put((sel,), rgb)
-                a = full.view(batch_patches, p, p, 3).permute(0, 3, 1, 2)
-                b = tgt.view(batch_patches, p, p, 3).permute(0, 3, 1, 2)
-                loss = loss + ssim_weight * (1.0 - ssim(a, b, window=7, mask=m.view(batch_patches, p, p)))
+                a = full.view(len(mine), p, p, 3).permute(0, 3, 1, 2)
+                b = tgt.view(len(mine), p, p, 3).permute(0, 3, 1, 2)
+                loss = loss + ssim_weight * (len(mine) / batch_patches) * (
+                    1.0 - ssim(a, b, window=7, mask=m.view(len(mine), p, p)))
 
             opt_tex.zero_grad(set_to_none=True)
             opt.zero_grad(set_to_none=True)
             loss.backward()
+            if exchange is not None:                  # sum the ranks' gradients; rank 0's clock, the batch's loss
+                own_clock = time.perf_counter() - t0 if exchange.rank == 0 else 0.0
+                shared_clock, l2_sum, loss_sum = exchange.reduce(
+                    dense_params, sparse_params, [own_clock, float(l2.detach()), float(loss.detach())])
+                l2, loss = torch.tensor(l2_sum), torch.tensor(loss_sum)
             opt_tex.step()
             opt.step()
+            if exchange is not None and model.quantizing:   # dead codes restart from each rank's own samples
+                exchange.agree([m_.vq.codebook.data for m_ in models])
             step += 1
             bar.update(1)
 
@@ -273,8 +297,15 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         for m_ in models:
             m_.record_touched = False
     log.steps = step
+    if exchange is not None:
+        for m_ in models:
+            exchange.union(m_.touched)
+        if exchange.rank != 0:
+            return log
     log.steps_per_second = (step - (log.resumed_from_step or 0)) / max(
         log.seconds - (float(stored["elapsed"]) if stored is not None else 0.0), 1e-9)
+    log.processes = exchange.world if exchange is not None else 1
+    log.pixels_per_second_per_process = log.steps_per_second * batch_patches * p * p / log.processes
     if checkpoint is not None:
         log.checkpoints_written = checkpoint.saved
     model.cpu()                    # the trained model leaves on the host (quantization and texel fill run there)
@@ -318,6 +349,32 @@ def _restore(state: dict, model, skybox, models, opt_tex, opt, gen, log: TrainLo
     log.entries = list(state["entries"])
     log.resumed_from_step = int(state["step"])
     return int(state["step"])
+
+
+@dataclass
+class _BatchCounts:
+    """Pixels of a whole batch: covered by the mesh, learnt by the skybox, and learnt at all."""
+    mesh: int
+    sky: int
+    learned: int
+
+    @staticmethod
+    def of(covered: torch.Tensor, sky_allowed: torch.Tensor | None) -> _BatchCounts:
+        """covered, sky_allowed: (P,) bool over the batch's pixels (sky_allowed None: no skybox)."""
+        mesh = int(covered.sum())
+        sky = 0 if sky_allowed is None else int((~covered & sky_allowed).sum())
+        return _BatchCounts(mesh, sky, mesh + sky)
+
+
+def _start_vq(m: torch.nn.Module, exchange: GradientExchange | None) -> None:
+    """Start quantization of ``m`` (a model or a skybox atlas) from the touched texels of every rank, with
+    rank 0's k-means codebook on every rank."""
+    if exchange is None:
+        m.start_vq()
+        return
+    exchange.union(m.touched)
+    m.start_vq()
+    exchange.agree([m.vq.codebook.data])
 
 
 @torch.no_grad()

@@ -81,7 +81,7 @@ class RunContext:
         device: where the field, the teacher and training compute (``neuras_distill.device``); on a GPU
             ``field`` is replaced by a :class:`~neuras_distill.device.DeviceField` after the fingerprint (of the
             host field: the same keys on every device) is taken.
-        pool: a :class:`~neuras_distill.parallel.RenderPool` sharing the teacher's renders (``--nproc N``), or
+        pool: a :class:`~neuras_distill.parallel.RenderPool` sharing the teacher's renders and training (``--nproc N``), or
             None (one process).
     """
 

@@ -40,7 +40,8 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
     def train() -> TrainedModel:
         gb = training.gbuffer
         tr = cfg.train
-        log = fit(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, lr=tr.lr,
+        train_fn = fit if ctx.pool is None else ctx.pool.fit      # --nproc N: data-parallel over the workers
+        log = train_fn(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, lr=tr.lr,
                   batch_patches=tr.batch_patches, patch=tr.patch, ssim_weight=tr.ssim_weight,
                   vq_warmup=tr.vq_warmup, time_budget_s=plan.time_budget_s, progress=ctx.progress, seed=tr.seed,
                   skybox=skybox, origins=backdrop.sky_origins, sky_pixels=backdrop.sky_pixels,
