@@ -56,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
 
     p = sub.add_parser("from-synthetic", help="an embedded synthetic scene through the whole pipeline")
-    p.add_argument("name", help="scene name (bunny, bunny-matte, sphere, torus, street, gradient-ball)")
+    p.add_argument("name", help="scene name (bunny, bunny-matte, sphere, torus, street, gradient-ball, city, city-small)")
     p.add_argument("--kind", choices=["sdf", "density"], default=None,
                    help="field type of the scene (default: the scene's own, sdf; density for gradient-ball)")
     _add_run_options(p)

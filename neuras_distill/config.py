@@ -107,6 +107,12 @@ class TextureConfig:
     ``left_out``. A fixed side overrides it."""
     max_resolution: int = 2048
     """Upper limit of the automatic atlas side."""
+    view_weighted_texels: bool = False
+    """Size each UV chart by the texel density its faces want (training pixels per unit area in the view that
+    sees them largest) instead of by its 3D area, charts cut into tiles of 1/48 of the scene first
+    (``geometry.unwrap.unwrap(face_weights=...)``). For scenes seen from a path through them, whose near
+    surfaces need far more texels per square metre than their distant ones (the city preset turns it on; the
+    street has not been measured with it). One-layer meshes only."""
     feature_dim: int = 8
     """Channels per texel (D)."""
     num_codes: int = 32768

@@ -271,9 +271,9 @@ class RenderPool:
         shared = {k: _shared_tensor(v) for k, v in arrays.items()}
         stored = checkpoint.load() if checkpoint is not None else None
         try:
-            self._dist.broadcast_object_list([FitRequest()], src=0)
-            for queue in self._queues:
+            for queue in self._queues:      # first the payloads (small: handles to shared memory), then the call
                 queue.put(FitPayload(copy.deepcopy(model), copy.deepcopy(skybox), shared, kwargs, stored))
+            self._dist.broadcast_object_list([FitRequest()], src=0)
             return fit(model, uv, coverage, dirs, targets, skybox=skybox, origins=origins, sky_pixels=sky_pixels,
                        checkpoint=checkpoint, progress=progress, exchange=GradientExchange(0, self.nproc),
                        **kwargs)

@@ -108,7 +108,7 @@ def test_laplace_density_and_wrapper():
 def test_make_scene_registry():
     assert set(SCENES) >= {"bunny", "sphere", "torus"}
     with pytest.raises(BadInputError, match="bunny"):
-        make_scene("city")
+        make_scene("atlantis")
     with pytest.raises(BadInputError):
         make_scene("sphere", kind="mesh")
     for name in ("sphere", "torus"):

@@ -477,3 +477,35 @@ def test_vertex_normals_are_smooth_across_uv_seams():
     s = MeshData(sphere.vertices, sphere.faces)
     radial = s.vertices / np.linalg.norm(s.vertices, axis=1, keepdims=True)
     assert np.einsum("ij,ij->i", s.vertex_normals(), radial).min() > 0.999
+
+
+def test_view_weighted_unwrap_gives_near_faces_more_texels():
+    """A 100 m strip whose faces want texel densities falling off 400x along it (a road seen from one end):
+    by area every part gets the same texels per m²; with face weights the wanted end gets several times more,
+    the mesh is the same surface (same faces, vertices only split at seams), and the planar strip is cut into
+    many charts (xatlas alone makes one chart of a plane)."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(100.0, 4.0, 0.5))
+    for _ in range(4):
+        box = box.subdivide()
+    mesh = MeshData(np.asarray(box.vertices, np.float32), np.asarray(box.faces, np.int64))
+    centre = mesh.vertices[mesh.faces].mean(axis=1)
+    weights = 1.0 / (1.0 + np.abs(centre[:, 0] + 50.0) / 5.0) ** 2
+    density = {}
+    for name, w in (("area", None), ("weighted", weights)):
+        out = unwrap(mesh, resolution=512, face_weights=w)
+        assert out.num_faces == mesh.num_faces and out.stats["uv_view_weighted"] == (w is not None)
+        tri = out.vertices[out.faces].astype(np.float64)
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        assert np.allclose(tri.mean(axis=1), centre, atol=1e-4)          # faces in the same order, same place
+        uv = np.abs(uv_face_areas(out.uvs, out.faces))
+        assert uv_overlap_fraction(out.uvs, out.faces)[0] < 0.01 and out.uvs.min() >= 0 and out.uvs.max() <= 1
+        near, far = centre[:, 0] < -45.0, centre[:, 0] > 40.0
+        density[name] = (uv[near].sum() / area[near].sum(), uv[far].sum() / area[far].sum(), out.stats["uv_charts"])
+    a_near, a_far, a_charts = density["area"]
+    w_near, w_far, w_charts = density["weighted"]
+    assert 0.7 < a_near / a_far < 1.4, density
+    assert w_near / w_far > 10.0 and w_charts > 10 * a_charts, density
+    with pytest.raises(BadInputError, match="face_weights"):
+        unwrap(mesh, resolution=64, face_weights=np.zeros(mesh.num_faces))

@@ -229,15 +229,16 @@ def _unless_perforated(surface: Surface, attempt, fusion, cameras, opacities) ->
 
 
 def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float = 120.0,
-                   max_unwrap_faces: int = MAX_UNWRAP_FACES) -> MeshData:
+                   max_unwrap_faces: int = MAX_UNWRAP_FACES, face_weights: np.ndarray | None = None) -> MeshData:
     """``surface.mesh`` unwrapped for a ``resolution`` x ``resolution`` atlas (``surface.trial`` when that is
-    its side), with the surface's stats and ``faces_final``, ``vertices_final``, ``chart_count``,
-    ``seconds_unwrap``."""
-    if surface.trial is not surface.mesh and int(resolution) == int(surface.trial_resolution):
+    its side and no ``face_weights`` are given: (F,) texel densities the faces want, ``unwrap``), with the
+    surface's stats and ``faces_final``, ``vertices_final``, ``chart_count``, ``seconds_unwrap``."""
+    if (surface.trial is not surface.mesh and int(resolution) == int(surface.trial_resolution)
+            and face_weights is None):
         return surface.trial
     t = time.perf_counter()
     mesh = unwrap(surface.mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=int(resolution),
-                  layout_vertices=surface.layout)
+                  layout_vertices=surface.layout, face_weights=face_weights)
     stats = {k: v for k, v in surface.mesh.stats.items() if not k.startswith("uv_")}
     mesh.stats = {**stats, **mesh.stats}
     mesh.stats.update(faces_final=mesh.num_faces, vertices_final=mesh.num_vertices, chart_count=mesh.stats.get("uv_charts"),

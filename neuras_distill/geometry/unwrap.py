@@ -73,6 +73,11 @@ def _xatlas_worker(conn, vertices: np.ndarray, faces: np.ndarray, options: dict)
 
     padding = int(options["padding"])
     resolution = int(options["resolution"])
+    weights = options.get("face_weights")
+    if weights is not None:    # first the charts, then the same charts packed at their weighted sizes
+        vertices, faces, input_uvs, pass1_vmapping = _weighted_charts(generate(resolution, padding), vertices,
+                                                                      faces, weights)
+        generate = _packer(vertices, faces, input_uvs)
     atlas = generate(resolution, padding)
     if atlas.atlas_count != 1:  # did not fit one page: let xatlas size one atlas freely, scaled later
         atlas = generate(0, padding)
@@ -83,11 +88,66 @@ def _xatlas_worker(conn, vertices: np.ndarray, faces: np.ndarray, options: dict)
         if atlas.atlas_count != 1:
             atlas = generate(0, padding)
     vmapping, indices, uvs = atlas[0]
+    if weights is not None:    # pass 2's vertices are pass 1's: map back to the input mesh's
+        vmapping = pass1_vmapping[np.asarray(vmapping, dtype=np.int64)]
     conn.send({"vmapping": np.asarray(vmapping, dtype=np.int64), "indices": np.asarray(indices, dtype=np.int64),
                "uvs": np.asarray(uvs, dtype=np.float32), "chart_count": int(atlas.chart_count),
                "width": int(atlas.width), "height": int(atlas.height), "atlas_count": int(atlas.atlas_count),
                "utilization": float(np.mean(atlas.utilization)), "padding": padding})
     conn.close()
+
+
+def _weighted_charts(atlas, vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray):
+    """Pass 1's charts (``atlas``) scaled by the faces' wanted texel density: each chart's vertices (split at
+    seams, so each belongs to one chart) are scaled about the chart's centroid by the square root of its
+    area-weighted mean weight over the whole mesh's (clamped to 1/16 .. 16). Returns the scaled layout positions
+    (V1, 3) float32, pass 1's faces (F, 3) uint32, its uvs in texel units (V1, 2) float32 and its vertex
+    mapping (V1,) int64 into the input vertices."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    vmapping, indices, uvs = atlas[0]
+    vmapping, indices = np.asarray(vmapping, dtype=np.int64), np.asarray(indices, dtype=np.int64)
+    pos = np.asarray(vertices, dtype=np.float64)[vmapping]
+    n = len(vmapping)
+    edges = np.concatenate([indices[:, [0, 1]], indices[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, vertex_chart = connected_components(graph, directed=False)
+    face_chart = vertex_chart[indices[:, 0]]
+    tri = pos[indices]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    w = np.asarray(weights, dtype=np.float64)      # faces are in the input order (xatlas keeps it)
+    charts = int(vertex_chart.max()) + 1
+    chart_area = np.bincount(face_chart, weights=area, minlength=charts)
+    chart_weight = np.bincount(face_chart, weights=area * w, minlength=charts) / np.maximum(chart_area, 1e-30)
+    mean = float((area * w).sum() / max(area.sum(), 1e-30))
+    factor = np.clip(np.sqrt(chart_weight / max(mean, 1e-30)), 1.0 / 16.0, 16.0)
+    centre = np.stack([np.bincount(face_chart, weights=area * tri[:, :, k].mean(axis=1), minlength=charts)
+                       for k in range(3)], axis=1) / np.maximum(chart_area, 1e-30)[:, None]
+    scaled = centre[vertex_chart] + factor[vertex_chart, None] * (pos - centre[vertex_chart])
+    texel_uvs = np.asarray(uvs, dtype=np.float64) * np.array([atlas.width, atlas.height], dtype=np.float64)
+    return scaled.astype(np.float32), indices.astype(np.uint32), texel_uvs.astype(np.float32), vmapping
+
+
+def _packer(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray):
+    """``generate(resolution, padding)`` that packs the given charts (``use_input_mesh_uvs``) at the sizes
+    their layout positions give."""
+    import xatlas
+
+    def generate(resolution: int, padding: int):
+        atlas = xatlas.Atlas()
+        atlas.add_mesh(vertices, faces, None, uvs)
+        chart = xatlas.ChartOptions()
+        chart.use_input_mesh_uvs = True
+        pack = xatlas.PackOptions()
+        pack.resolution = int(resolution)
+        pack.padding = int(padding)
+        pack.bilinear = True
+        pack.blockAlign = True
+        atlas.generate(chart, pack)
+        return atlas
+
+    return generate
 
 
 # ---------------------------------------------------------------------------------------------- parent side
@@ -129,12 +189,31 @@ def _jitter(vertices: np.ndarray, faces: np.ndarray, amount: float = 0.05) -> np
     return (vertices + amount * mean_edge * rng.uniform(-1.0, 1.0, vertices.shape)).astype(np.float32)
 
 
+def _cut_into_tiles(vertices: np.ndarray, faces: np.ndarray, size: float):
+    """The mesh with its vertices duplicated where faces of different cubic tiles (side ``size``, by face
+    centroid) meet, so no chart can cross a tile border: (V', 3) vertices, (F, 3) uint32 faces (same order) and
+    (V',) int64 the original vertex of each."""
+    f = np.asarray(faces, dtype=np.int64)
+    cell = np.floor(np.asarray(vertices, dtype=np.float64)[f].mean(axis=1) / size).astype(np.int64)
+    _, tile = np.unique(cell, axis=0, return_inverse=True)
+    keys = f * (int(tile.max()) + 1) + tile.reshape(-1, 1)
+    unique, inverse = np.unique(keys.reshape(-1), return_inverse=True)
+    original = unique // (int(tile.max()) + 1)
+    return (np.asarray(vertices)[original].astype(np.float32), inverse.reshape(-1, 3).astype(np.uint32),
+            original.astype(np.int64))
+
+
 def uv_face_areas(uvs: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) signed uv area per face (positive = counter-clockwise in uv space)."""
     a, b, c = uvs[faces[:, 0]], uvs[faces[:, 1]], uvs[faces[:, 2]]
     ab, ac = b - a, c - a
     return 0.5 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
 
+
+#: With face weights, the mesh is cut into cubic tiles of 1/WEIGHTED_TILES of its extent before charting: xatlas
+#: makes one chart of a planar region whatever its size (its planar charts ignore ``max_chart_area``), and a
+#: road would then be one chart from the pixels at the camera's feet to the horizon, sized by one mean weight.
+WEIGHTED_TILES = 48
 
 #: Largest mesh the unwrap accepts (xatlas's time grows faster than linearly; larger budgets are refused up front).
 MAX_UNWRAP_FACES = 200_000
@@ -152,7 +231,7 @@ def normalized_layout(positions: np.ndarray) -> np.ndarray:
 
 def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNWRAP_FACES, resolution: int | None = None,
            padding: int = 3, min_padding: float = 2.0, max_iterations: int = 1,
-           layout_vertices: np.ndarray | None = None) -> MeshData:
+           layout_vertices: np.ndarray | None = None, face_weights: np.ndarray | None = None) -> MeshData:
     """UV-unwrap ``mesh`` into one square atlas.
 
     Args:
@@ -166,6 +245,10 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNW
         layout_vertices: optional (V, 3) positions xatlas lays the charts out from (default: the vertices);
             charts are sized by their area there, so a part scaled by k gets k^2 of the texels it would get.
             The returned geometry is always ``mesh.vertices``.
+        face_weights: optional (F,) positive texel densities the faces want (e.g. training pixels per unit
+            area): the charts are made within tiles of 1/:data:`WEIGHTED_TILES` of the extent (so one chart does
+            not span near and far), then packed again with each chart scaled by the square root of its mean
+            weight relative to the mesh's, so texels follow what the views need instead of 3D area.
 
     Returns:
         MeshData with vertices (V', 3) split along seams (V' >= V), faces (F, 3) in the same order, uvs (V', 2)
@@ -196,11 +279,19 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNW
     faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
     options = {"resolution": resolution, "padding": int(padding), "min_padding": float(min_padding),
                "max_iterations": int(max_iterations)}
+    if face_weights is not None:
+        weights = np.asarray(face_weights, dtype=np.float64).reshape(-1)
+        if weights.shape[0] != n_faces or not np.isfinite(weights).all() or (weights <= 0).any():
+            raise BadInputError("unwrap: face_weights must be finite and positive, one per face")
+        options["face_weights"] = weights
+    tile_map = None
+    if face_weights is not None:
+        vertices, faces, tile_map = _cut_into_tiles(vertices, faces, 1.0 / WEIGHTED_TILES)
     attempts = []
     result = None
     for attempt, positions in enumerate((vertices, None)):
         if positions is None:
-            positions = _jitter(vertices, mesh.faces)
+            positions = _jitter(vertices, faces)
         status, result = _run_in_child(positions, faces, options, timeout_s)
         attempts.append(status)
         if status == "ok":
@@ -211,6 +302,8 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNW
                             f"vertices; {timeout_s:g} s limit per try); lower --face-budget "
                             f"(e.g. to {max(1000, n_faces // 2)}) or raise the unwrap time limit")
     vmapping, indices, uv = result["vmapping"], result["indices"], result["uvs"].astype(np.float64)
+    if tile_map is not None:
+        vmapping = tile_map[vmapping]
     scale = 1.0 / max(result["width"], result["height"])
     uv = uv * np.array([result["width"], result["height"]], dtype=np.float64) * scale
     uv = np.clip(uv, 0.0, 1.0).astype(np.float32)
@@ -218,7 +311,8 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNW
     stats.update(uv_charts=result["chart_count"], uv_atlas_width=result["width"], uv_atlas_height=result["height"],
                  uv_utilization=result["utilization"] * result["width"] * result["height"] * scale * scale,
                  uv_resolution=resolution, uv_padding_texels=result["padding"] * resolution * scale,
-                 uv_attempts=attempts, uv_seconds=time.perf_counter() - t0)
+                 uv_attempts=attempts, uv_seconds=time.perf_counter() - t0,
+                 uv_view_weighted=face_weights is not None)
     return MeshData(mesh.vertices[vmapping], indices, uv, stats, core_faces=mesh.core_faces)
 
 

@@ -139,6 +139,17 @@ def texel_density_resolution(mesh: MeshData, cameras, *, pixels_per_texel: float
     Returns:
         (R, {"pixels": A_px, "uv_area": A_uv, "exact": unrounded R}).
     """
+    best, _ = face_footprints(mesh, cameras)
+    pixels, uv_total = float(best.sum()), mesh.uv_area()
+    exact = (float(np.sqrt(pixels / uv_total)) / float(pixels_per_texel)
+             if uv_total > 0 and pixels > 0 else float(lo))
+    r = int(min(hi, max(lo, multiple * np.ceil(exact / multiple))))
+    return r, {"pixels": pixels, "uv_area": uv_total, "exact": exact}
+
+
+def face_footprints(mesh: MeshData, cameras) -> tuple[np.ndarray, np.ndarray]:
+    """(F,) pixels each face covers in the training view that sees it largest (the pinhole footprint of
+    :func:`texel_density_resolution`; occlusion ignored) and (F,) the faces' areas in world units²."""
     v = mesh.vertices.astype(np.float64)
     f = mesh.faces
     tri = v[f]
@@ -161,11 +172,18 @@ def texel_density_resolution(mesh: MeshData, cameras, *, pixels_per_texel: float
         # pinhole footprint of a small patch: area * cos * f^2 * distance / depth^3
         foot = np.where(ok, area * facing * fx * fy * dist / np.maximum(depth, 1e-30) ** 3, 0.0)
         np.maximum(best, foot, out=best)
-    pixels, uv_total = float(best.sum()), mesh.uv_area()
-    exact = (float(np.sqrt(pixels / uv_total)) / float(pixels_per_texel)
-             if uv_total > 0 and pixels > 0 else float(lo))
-    r = int(min(hi, max(lo, multiple * np.ceil(exact / multiple))))
-    return r, {"pixels": pixels, "uv_area": uv_total, "exact": exact}
+    return best, area
+
+
+def view_texel_weights(mesh: MeshData, cameras) -> np.ndarray:
+    """(F,) texel density each face wants: training pixels per unit area in the view that sees it largest
+    (:func:`face_footprints`); faces no training view frames (kept by the conservative culling) get the 5th
+    percentile of the others. For ``geometry.unwrap.unwrap(face_weights=...)``."""
+    pixels, area = face_footprints(mesh, cameras)
+    density = pixels / np.maximum(area, 1e-30)
+    seen = density > 0
+    floor = float(np.percentile(density[seen], 5)) if seen.any() else 1.0
+    return np.maximum(density, max(floor, 1e-12))
 
 
 #: Training samples (pixels drawn over the whole run) each used texel should get at least. With fewer the

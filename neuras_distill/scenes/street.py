@@ -176,6 +176,65 @@ def _lower_bound_mask(d: torch.Tensor, bound: torch.Tensor) -> torch.Tensor:
     return torch.nonzero(bound < d).squeeze(1)
 
 
+def facade_albedo(ps, n, wall, frame, glass, win, x0, x1, yf, h, back_y):
+    """Facade albedo (M, 3) with a window grid (frames, glass), ground-floor shop fronts and a roof, and the gloss
+    weight (M,) (the glass), for box buildings whose street facades face ±y.
+
+    Args: local surface points ps (M, 3) and normals n (M, 3); per point, the building's wall, frame and glass
+    colours (M, 3), window grid (M, 4) (cell width, floor height, window half width, half height), x extent
+    x0, x1 (M,), facade |y| yf (M,), height h (M,), and the |y| of its back wall back_y (M,) or a float."""
+    px, py, pz = ps.unbind(-1)
+    cw, fh, hw, hh = win.unbind(-1)
+    front = n[:, 1].abs() >= n[:, 0].abs()
+    # coordinate along the wall: x on street facades, |y| on the side walls
+    u = torch.where(front, px - x0, py.abs() - yf)
+    width = torch.where(front, x1 - x0, back_y - yf)
+    ncol = torch.floor((width - 0.6) / cw).clamp(min=0.0)
+    off = 0.5 * (width - ncol * cw)
+    uu = (u - off) / cw
+    col = torch.floor(uu)
+    du = (uu - col - 0.5) * cw  # metres from the window centre
+    in_cols = (col >= 0) & (col < ncol)
+    # storeys: a shop front below GROUND_FLOOR, a grid of floors above, a parapet band on top
+    zz = pz - CURB_H
+    nrow = torch.floor((h - GROUND_FLOOR - 1.0) / fh).clamp(min=0.0)
+    vv = (zz - GROUND_FLOOR) / fh
+    row = torch.floor(vv)
+    dv = (vv - row - 0.5) * fh
+    upper = (row >= 0) & (row < nrow) & in_cols
+    ground = zz < GROUND_FLOOR
+    shop_dv = zz - 1.6
+    hw_g, hh_g = (0.5 * cw - 0.15), torch.full_like(hh, 1.1)
+    dvv = torch.where(ground, shop_dv, dv)
+    hw2 = torch.where(ground, hw_g, hw)
+    hh2 = torch.where(ground, hh_g, hh)
+    box = torch.maximum(du.abs() - hw2, dvv.abs() - hh2)  # signed 2D distance to the window rectangle
+    e = 0.025
+    has_window = (upper | (ground & in_cols & front)).float()
+    frame_m = _smoothstep(e, -e, box) * has_window
+    glass_m = _smoothstep(e, -e, box + 0.09) * has_window
+    c = wall * (0.93 + 0.07 * torch.sin(0.5 * pz + 0.3 * px)[:, None])
+    band = _smoothstep(-0.05, 0.05, zz - GROUND_FLOOR + 0.25) * \
+        _smoothstep(0.05, -0.05, zz - GROUND_FLOOR)  # cornice over the shop fronts
+    c = c * (1.0 - 0.25 * band[:, None])
+    parapet = _smoothstep(h - 0.65, h - 0.55, pz)
+    c = c * (1.0 - 0.2 * parapet[:, None])
+    c = c + (frame - c) * frame_m[:, None]
+    c = c + (glass - c) * glass_m[:, None]
+    roof = _smoothstep(0.6, 0.8, n[:, 2])[:, None]
+    c = c + (torch.tensor([0.30, 0.29, 0.28]) - c) * roof
+    return c, glass_m * (1.0 - roof[:, 0])
+
+
+def car_albedo(paint: torch.Tensor, part: torch.Tensor, z: torch.Tensor):
+    """Albedo (M, 3) and gloss (M,) of car surface points: paint (M, 3), part (M,) (0 body, 1 cabin, 2 wheels),
+    height above the road z (M,): a window band round the cabin, rubber wheels."""
+    is_window = ((part == 1) & (z > 1.02) & (z < 1.36)).float()[:, None]
+    c = paint + (torch.tensor([0.06, 0.07, 0.09]) - paint) * is_window
+    c = torch.where((part == 2)[:, None], torch.tensor([0.05, 0.05, 0.05]), c)
+    return c, torch.where(part == 2, 0.0, 0.55 + 0.45 * is_window[:, 0])
+
+
 # ---------------------------------------------------------------------------------------------- the field
 class StreetField:
     """A street with buildings, cars, lamps and trees under a sky with hills (kind ``"sdf"``, metres, z up).
@@ -514,15 +573,7 @@ class StreetField:
         sel = torch.nonzero(mat == _MAT_CAR).squeeze(1)
         if sel.numel():
             car, part = torch.div(sub[sel], 4, rounding_mode="floor"), sub[sel] % 4
-            paint = self._car_paint[car]
-            glass = torch.tensor([0.06, 0.07, 0.09])
-            rubber = torch.tensor([0.05, 0.05, 0.05])
-            z = pz[sel]
-            is_window = ((part == 1) & (z > 1.02) & (z < 1.36)).float()[:, None]  # a band round the cabin
-            c = paint + (glass - paint) * is_window
-            c = torch.where((part == 2)[:, None], rubber, c)
-            alb[sel] = c
-            gloss[sel] = torch.where(part == 2, 0.0, 0.55 + 0.45 * is_window[:, 0])
+            alb[sel], gloss[sel] = car_albedo(self._car_paint[car], part, pz[sel])
         sel = torch.nonzero(mat == _MAT_LAMP).squeeze(1)
         if sel.numel():
             head = (sub[sel] == 2)[:, None]
@@ -575,51 +626,9 @@ class StreetField:
         return road + (side - road) * on_walk
 
     def _building_albedo(self, ps, n, bid):
-        """Facade albedo (M, 3) with a window grid (frames, glass), ground-floor shop fronts and a roof, and
-        the gloss weight (M,) (the glass)."""
-        px, py, pz = ps.unbind(-1)
-        wall, frame, glass = self._bwall[bid], self._bframe[bid], self._bglass[bid]
-        cw, fh, hw, hh = self._bwin[bid].unbind(-1)
-        x0, x1, yf, h = self._bx0[bid], self._bx1[bid], self._byf[bid], self._bh[bid]
-        front = n[:, 1].abs() >= n[:, 0].abs()
-        # coordinate along the wall: x on street facades, |y| on the side walls
-        u = torch.where(front, px - x0, py.abs() - yf)
-        width = torch.where(front, x1 - x0, BACK_Y - yf)
-        ncol = torch.floor((width - 0.6) / cw).clamp(min=0.0)
-        off = 0.5 * (width - ncol * cw)
-        uu = (u - off) / cw
-        col = torch.floor(uu)
-        du = (uu - col - 0.5) * cw  # metres from the window centre
-        in_cols = (col >= 0) & (col < ncol)
-        # storeys: a shop front below GROUND_FLOOR, a grid of floors above, a parapet band on top
-        zz = pz - CURB_H
-        nrow = torch.floor((h - GROUND_FLOOR - 1.0) / fh).clamp(min=0.0)
-        vv = (zz - GROUND_FLOOR) / fh
-        row = torch.floor(vv)
-        dv = (vv - row - 0.5) * fh
-        upper = (row >= 0) & (row < nrow) & in_cols
-        ground = zz < GROUND_FLOOR
-        shop_dv = zz - 1.6
-        hw_g, hh_g = (0.5 * cw - 0.15), torch.full_like(hh, 1.1)
-        dvv = torch.where(ground, shop_dv, dv)
-        hw2 = torch.where(ground, hw_g, hw)
-        hh2 = torch.where(ground, hh_g, hh)
-        box = torch.maximum(du.abs() - hw2, dvv.abs() - hh2)  # signed 2D distance to the window rectangle
-        e = 0.025
-        has_window = (upper | (ground & in_cols & front)).float()
-        frame_m = _smoothstep(e, -e, box) * has_window
-        glass_m = _smoothstep(e, -e, box + 0.09) * has_window
-        c = wall * (0.93 + 0.07 * torch.sin(0.5 * pz + 0.3 * px)[:, None])
-        band = _smoothstep(-0.05, 0.05, zz - GROUND_FLOOR + 0.25) * \
-            _smoothstep(0.05, -0.05, zz - GROUND_FLOOR)  # cornice over the shop fronts
-        c = c * (1.0 - 0.25 * band[:, None])
-        parapet = _smoothstep(h - 0.65, h - 0.55, pz)
-        c = c * (1.0 - 0.2 * parapet[:, None])
-        c = c + (frame - c) * frame_m[:, None]
-        c = c + (glass - c) * glass_m[:, None]
-        roof = _smoothstep(0.6, 0.8, n[:, 2])[:, None]
-        c = c + (torch.tensor([0.30, 0.29, 0.28]) - c) * roof
-        return c, glass_m * (1.0 - roof[:, 0])
+        """Facade albedo (M, 3) and gloss (M,) of the buildings ``bid`` (M,) (:func:`facade_albedo`)."""
+        return facade_albedo(ps, n, self._bwall[bid], self._bframe[bid], self._bglass[bid], self._bwin[bid],
+                             self._bx0[bid], self._bx1[bid], self._byf[bid], self._bh[bid], BACK_Y)
 
     def _sun_visibility(self, p: torch.Tensor) -> torch.Tensor:
         """(M,) in [0, 1]: 1 where the sun is visible from local points p (M, 3) (already offset from the

@@ -4,7 +4,8 @@ This module owns:
 
 * :data:`SCENES` (name -> factory) and :func:`make_scene` (``kind`` ``"sdf"`` or ``"density"``, default the
   scene's own). Names:
-  ``"bunny"`` (the default/demo scene), ``"bunny-matte"`` (the same without its highlight), ``"sphere"``, ``"torus"``, ``"street"`` (:mod:`.street`),
+  ``"bunny"`` (the default/demo scene), ``"bunny-matte"`` (the same without its highlight), ``"sphere"``,
+  ``"torus"``, ``"street"`` (:mod:`.street`), ``"city"`` and ``"city-small"`` (:mod:`.city`),
   ``"gradient-ball"`` (:mod:`.gradient_ball`, a density field only).
 * :class:`BunnyField`: the real Stanford bunny (``neuras_distill/data/bunny.obj``, y-up in the file) rotated
   to z-up, scaled to 1 unit tall, standing on a rounded disc. Its SDF is computed once with open3d
@@ -39,6 +40,7 @@ from ..errors import BadInputError
 from ..fields.wrappers import SDFToDensityField
 from .analytic import SphereSDF, TorusSDF, orbit_framing
 from .gradient_ball import make_gradient_ball
+from .city import CITY_BETA, make_city, make_small_city
 from .street import STREET_BETA, make_street
 
 BUNNY_OBJ = Path(__file__).resolve().parent.parent / "data" / "bunny.obj"
@@ -327,9 +329,11 @@ def _torus() -> TorusSDF:
 
 SCENES: dict[str, Callable[[], object]] = {"bunny": _bunny, "bunny-matte": _bunny_matte, "sphere": _sphere,
                                            "torus": _torus, "street": make_street,
-                                           "gradient-ball": make_gradient_ball}
+                                           "gradient-ball": make_gradient_ball, "city": make_city,
+                                           "city-small": make_small_city}
 DEFAULT_SCENE = "bunny"
-SCENE_BETA = {"bunny": BUNNY_BETA, "bunny-matte": BUNNY_BETA, "sphere": BUNNY_BETA, "torus": BUNNY_BETA, "street": STREET_BETA}
+SCENE_BETA = {"bunny": BUNNY_BETA, "bunny-matte": BUNNY_BETA, "sphere": BUNNY_BETA, "torus": BUNNY_BETA,
+              "street": STREET_BETA, "city": CITY_BETA, "city-small": CITY_BETA}
 
 
 def make_scene(name: str = DEFAULT_SCENE, kind: str | None = None):

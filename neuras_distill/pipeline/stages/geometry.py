@@ -26,10 +26,13 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     surface = extract(ctx, views, teacher, enclose)
     auto_side = ctx.cfg.texture.resolution == 0
     side, density = choose_atlas_side(ctx, surface, views, plan) if auto_side else (ctx.cfg.texture.resolution, {})
-    key = digest("geometry", ctx.keys["surface"], side, decisions.MIN_TEXEL_YIELD if auto_side else None)
+    weighted = ctx.cfg.texture.view_weighted_texels and surface.layout is None
+    weights = decisions.view_texel_weights(surface.mesh, views.train) if weighted else None
+    key = digest("geometry", ctx.keys["surface"], side, decisions.MIN_TEXEL_YIELD if auto_side else None,
+                 *(("view-weighted texels",) if weighted else ()))
 
     def unwrap_at_side() -> GeometryResult:
-        mesh = unwrap_surface(surface, side, unwrap_timeout_s=g.unwrap_timeout_s)
+        mesh = unwrap_surface(surface, side, unwrap_timeout_s=g.unwrap_timeout_s, face_weights=weights)
         if not auto_side:
             return GeometryResult(mesh, density)
         # the side was chosen from the trial unwrap's uv area; many small charts lose more of a small atlas to
@@ -40,7 +43,7 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
                                                                      density.get("budget", side)))
         if grown == side:
             return GeometryResult(mesh, density)
-        regrown = unwrap_surface(surface, grown, unwrap_timeout_s=g.unwrap_timeout_s)
+        regrown = unwrap_surface(surface, grown, unwrap_timeout_s=g.unwrap_timeout_s, face_weights=weights)
         info = dict(density, chosen=grown, texel_yield=used / wanted, regrown_from=side,
                     texel_yield_after=regrown.uv_area() * grown ** 2 / wanted)
         return GeometryResult(regrown, info)
@@ -61,6 +64,14 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
                 f"{100 * density['texel_yield']:.0f}% of the texels the surface needs; unwrapped again at "
                 f"{tex_res}x{tex_res} ({100 * density['texel_yield_after']:.0f}%)",
                 side=tex_res, texel_yield=density["texel_yield"], texel_yield_after=density["texel_yield_after"])
+    if weighted:
+        spread = np.percentile(weights, [10, 50, 90])
+        ctx.decisions.keep(
+            "texels where the views need them",
+            f"charts (within tiles of 1/48 of the scene) sized by the training pixels per unit area that the view "
+            f"seeing them largest gives, not by their 3D area (texture.view_weighted_texels): wanted densities "
+            f"span {spread[2] / spread[0]:.0f}x between the 10th and 90th percentile of faces",
+            p10=float(spread[0]), p50=float(spread[1]), p90=float(spread[2]))
     _record_surface_source(ctx, mesh.stats)
     culled = int(mesh.stats.get("culled_faces", 0))
     if culled:
