@@ -63,12 +63,7 @@ def _xatlas_worker(conn, vertices: np.ndarray, faces: np.ndarray, options: dict)
         atlas.add_mesh(vertices, faces)
         chart = xatlas.ChartOptions()
         chart.max_iterations = int(options["max_iterations"])
-        pack = xatlas.PackOptions()
-        pack.resolution = int(resolution)
-        pack.padding = int(padding)
-        pack.bilinear = True
-        pack.blockAlign = True
-        atlas.generate(chart, pack)
+        atlas.generate(chart, _pack_options(resolution, padding))
         return atlas
 
     padding = int(options["padding"])
@@ -95,6 +90,18 @@ def _xatlas_worker(conn, vertices: np.ndarray, faces: np.ndarray, options: dict)
                "width": int(atlas.width), "height": int(atlas.height), "atlas_count": int(atlas.atlas_count),
                "utilization": float(np.mean(atlas.utilization)), "padding": padding})
     conn.close()
+
+
+def _pack_options(resolution: int, padding: int):
+    """xatlas packing at about ``resolution`` texels with ``padding`` texels between charts, bilinear-safe."""
+    import xatlas
+
+    pack = xatlas.PackOptions()
+    pack.resolution = int(resolution)
+    pack.padding = int(padding)
+    pack.bilinear = True
+    pack.blockAlign = True
+    return pack
 
 
 def _weighted_charts(atlas, vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray):
@@ -139,12 +146,7 @@ def _packer(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray):
         atlas.add_mesh(vertices, faces, None, uvs)
         chart = xatlas.ChartOptions()
         chart.use_input_mesh_uvs = True
-        pack = xatlas.PackOptions()
-        pack.resolution = int(resolution)
-        pack.padding = int(padding)
-        pack.bilinear = True
-        pack.blockAlign = True
-        atlas.generate(chart, pack)
+        atlas.generate(chart, _pack_options(resolution, padding))
         return atlas
 
     return generate
