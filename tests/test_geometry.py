@@ -248,6 +248,50 @@ def test_decimate_reaches_budget_and_stays_close(sphere_mesh):
     assert is_watertight(out.faces) and signed_volume(out.vertices, out.faces) > 0
 
 
+class CarOnRoadSDF:
+    """A 400 m road strip (z = 0) with a 4 x 2 x 1.5 m box on it at x = 0: a small feature on a large plane,
+    as the city's cars (the mesh is collapsed in a frame where the car is 1/100 of the extent)."""
+    kind = "sdf"
+    aabb = torch.tensor([[-200.0, -10.0, -2.0], [200.0, 10.0, 4.0]])
+
+    def geometry(self, x):
+        q = (x - torch.tensor([0.0, 0.0, 0.75])).abs() - torch.tensor([2.0, 1.0, 0.75])
+        box = q.clamp(min=0).norm(dim=-1) + q.max(dim=-1).values.clamp(max=0)
+        return torch.minimum(x[:, 2], box)
+
+
+def test_decimate_keeps_small_features_on_large_meshes():
+    """The planar quadric's weight shrinks for fine meshes (cleanup.planar_weight): at pymeshlab's fixed 1e-3
+    the car is flattened into the road on a mesh 1/1000 of a voxel fine, with the scaled weight it stands."""
+    import neuras_distill.geometry.cleanup as cleanup
+
+    mesh = clean_mesh(marching_cubes_field(CarOnRoadSDF(), 1200))
+    weight = cleanup.planar_weight(mesh.vertices.astype(np.float64), mesh.faces)
+    assert weight < 0.2 * cleanup.PLANAR_WEIGHT
+    assert cleanup.planar_weight(*sphere_like_ordinary_mesh()) == cleanup.PLANAR_WEIGHT
+
+    def car_height(m):
+        v = m.vertices
+        near = (np.abs(v[:, 0]) < 2.5) & (np.abs(v[:, 1]) < 1.5)
+        return float(v[near, 2].max()) if near.any() else 0.0
+
+    out = decimate(mesh, 3000)
+    assert out.stats["decimate_planar_weight"] == pytest.approx(weight)
+    assert car_height(out) > 1.3, car_height(out)
+    original = cleanup.planar_weight
+    try:   # the fixed weight: the same decimation loses the car (proves the test can fail)
+        cleanup.planar_weight = lambda v, f: cleanup.PLANAR_WEIGHT
+        flat = decimate(mesh, 3000)
+    finally:
+        cleanup.planar_weight = original
+    assert car_height(flat) < car_height(out) - 0.3, (car_height(flat), car_height(out))
+
+
+def sphere_like_ordinary_mesh():
+    m = clean_mesh(marching_cubes_field(SphereSDF(), 64))
+    return m.vertices.astype(np.float64), m.faces
+
+
 @pytest.mark.parametrize("budget", [0, 3, -5, 100.0, True, "1000"])
 def test_bad_face_budget(sphere_mesh, budget):
     with pytest.raises(BadInputError, match="face budget must be at least"):

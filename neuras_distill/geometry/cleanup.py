@@ -6,7 +6,8 @@
   connected components with fewer faces than ``min_component_fraction`` of the largest (marching-cubes floaters;
   they also stop decimation from reaching its budget since a closed component cannot shrink below 4 faces).
 * :func:`decimate`: pymeshlab quadric edge collapse with ``preserveboundary``, ``preservetopology``,
-  ``planarquadric`` (keeps flat regions flat) and ``optimalplacement`` chosen per mesh: on, unless the mesh is
+  ``planarquadric`` (keeps flat regions flat; its weight shrinks with the squared edge length for meshes
+  finer than :data:`PLANAR_REF_EDGES` edges across, :func:`planar_weight`) and ``optimalplacement`` chosen per mesh: on, unless the mesh is
   thin (smallest box side < 1% of the largest), where it makes spikes and breaks watertightness; a pass that
   produces spikes (vertices leaving the input's box) or opens a closed mesh is redone with it off. When a pass
   overshoots the budget, further passes aim lower (at most ``max_passes``).
@@ -171,13 +172,36 @@ def _check_budget(face_budget) -> int:
     return int(face_budget)
 
 
+#: pymeshlab's weight of the planar quadric (its default), kept for meshes with edges at least
+#: 1 / :data:`PLANAR_REF_EDGES` of the frame's size long.
+PLANAR_WEIGHT = 1e-3
+#: Edges across the (unit) frame up to which :data:`PLANAR_WEIGHT` applies as it is. The planar quadric's pull
+#: does not shrink with the faces as the geometric quadric's does: on the 1.2 km city (marching-cubes edges
+#: 1/1872 of the frame) at 1e-3 it flattened cars, trees, curbs and roof edges, 19.3% of held-out pixels then
+#: saw the wrong surface against 4.6% for the undecimated mesh; the same weight with the mesh scaled 10x, or a
+#: weight of 3e-5, gave 4.6-4.9% (session 21). Every other preset keeps 1e-3 (the street's marching-cubes edges
+#: are 1/373 of its box, the quality preset's 1/298; the city's get 4.6e-5).
+PLANAR_REF_EDGES = 400.0
+
+
+def planar_weight(v: np.ndarray, f: np.ndarray) -> float:
+    """Planar-quadric weight for the mesh (V, 3) / (F, 3) in the frame it is collapsed in:
+    :data:`PLANAR_WEIGHT` scaled by the squared ratio of its median edge to 1 / :data:`PLANAR_REF_EDGES` of
+    the frame's size (largest box side), at most 1."""
+    size = float((v.max(axis=0) - v.min(axis=0)).max()) if len(v) else 0.0
+    if size <= 0.0 or len(f) == 0:
+        return PLANAR_WEIGHT
+    edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1))) / size
+    return PLANAR_WEIGHT * min(1.0, (edge * PLANAR_REF_EDGES) ** 2)
+
+
 def _quadric_pass(v: np.ndarray, f: np.ndarray, target: int, optimal: bool, preserve_boundary: bool,
-                  preserve_topology: bool, planar: bool) -> tuple[np.ndarray, np.ndarray]:
+                  preserve_topology: bool, planar: bool, weight: float = PLANAR_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
     ms = _to_meshset(v, f)
     ms.meshing_decimation_quadric_edge_collapse(
         targetfacenum=int(target), qualitythr=0.3, preserveboundary=preserve_boundary, boundaryweight=1.0,
         preservenormal=True, preservetopology=preserve_topology, optimalplacement=optimal,
-        planarquadric=planar, autoclean=True)
+        planarquadric=planar, planarweight=float(weight), autoclean=True)
     ms.meshing_remove_unreferenced_vertices()
     return _from_meshset(ms)
 
@@ -200,7 +224,7 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
 
     Returns:
         MeshData with stats ``decimate_faces_in``, ``decimate_faces_out``, ``decimate_passes``,
-        ``decimate_optimal_placement``, ``decimate_budget_reached``, ``decimate_seconds``. If topology
+        ``decimate_optimal_placement``, ``decimate_planar_weight``, ``decimate_budget_reached``, ``decimate_seconds``. If topology
         preservation stops above the budget after ``max_passes`` passes, ``decimate_budget_reached`` is False.
 
     Raises:
@@ -225,15 +249,18 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
     auto = optimal_placement is None
     optimal = bool(extent.min() >= 0.01 * extent.max()) if auto else bool(optimal_placement)
     watertight = is_watertight(f0)
+    weight = planar_weight(v0, f0)
     v, f = v0, f0
     passes = 0
     target = budget
     while passes < max(1, int(max_passes)):
-        nv, nf = _quadric_pass(v, f, target, optimal, preserve_boundary, preserve_topology, planar_quadric)
+        nv, nf = _quadric_pass(v, f, target, optimal, preserve_boundary, preserve_topology, planar_quadric,
+                                       weight)
         passes += 1
         if optimal and auto and _looks_broken(v0, watertight, nv, nf):
             optimal = False
-            nv, nf = _quadric_pass(v, f, target, optimal, preserve_boundary, preserve_topology, planar_quadric)
+            nv, nf = _quadric_pass(v, f, target, optimal, preserve_boundary, preserve_topology, planar_quadric,
+                                       weight)
         progressed = nf.shape[0] < f.shape[0]
         v, f = nv, nf
         if f.shape[0] <= budget or not progressed:
@@ -241,7 +268,7 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
         # overshoot: aim lower, proportionally to how far off the last pass ended
         target = max(4, int(budget * budget / f.shape[0]))
     stats.update(decimate_faces_in=int(f0.shape[0]), decimate_faces_out=int(f.shape[0]), decimate_passes=passes,
-                 decimate_optimal_placement=optimal, decimate_budget_reached=bool(f.shape[0] <= budget),
+                 decimate_optimal_placement=optimal, decimate_planar_weight=weight, decimate_budget_reached=bool(f.shape[0] <= budget),
                  decimate_seconds=time.perf_counter() - t0)
     return MeshData((v * size + centre).astype(np.float32), f.astype(np.int32), None, stats)
 
