@@ -7,10 +7,10 @@
   they also stop decimation from reaching its budget since a closed component cannot shrink below 4 faces).
 * :func:`decimate`: pymeshlab quadric edge collapse with ``preserveboundary``, ``preservetopology``,
   ``planarquadric`` (keeps flat regions flat; its weight shrinks with the squared edge length for meshes
-  finer than :data:`PLANAR_REF_EDGES` edges across, :func:`planar_weight`) and ``optimalplacement`` chosen per mesh: on, unless the mesh is
-  thin (smallest box side < 1% of the largest), where it makes spikes and breaks watertightness; a pass that
-  produces spikes (vertices leaving the input's box) or opens a closed mesh is redone with it off. When a pass
-  overshoots the budget, further passes aim lower (at most ``max_passes``).
+  finer than :data:`PLANAR_REF_EDGES` edges across, :func:`planar_weight`) and ``optimalplacement`` chosen per
+  mesh: on, unless the mesh is thin (smallest box side < 1% of the largest), where it makes spikes and breaks
+  watertightness; a pass that produces spikes (vertices leaving the input's box) or opens a closed mesh is
+  redone with it off. When a pass overshoots the budget, further passes aim lower (at most ``max_passes``).
 
 * :func:`smooth_rough`: Taubin smoothing (lambda/mu, volume preserving: no shrinking, nothing erased) of a
   mesh whose marching-cubes surface was rough (``mc_folded_fraction`` above :data:`ROUGH_FOLDED_FRACTION`).
@@ -196,7 +196,8 @@ def planar_weight(v: np.ndarray, f: np.ndarray) -> float:
 
 
 def _quadric_pass(v: np.ndarray, f: np.ndarray, target: int, optimal: bool, preserve_boundary: bool,
-                  preserve_topology: bool, planar: bool, weight: float = PLANAR_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
+                  preserve_topology: bool, planar: bool,
+                  weight: float = PLANAR_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
     ms = _to_meshset(v, f)
     ms.meshing_decimation_quadric_edge_collapse(
         targetfacenum=int(target), qualitythr=0.3, preserveboundary=preserve_boundary, boundaryweight=1.0,
@@ -224,8 +225,9 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
 
     Returns:
         MeshData with stats ``decimate_faces_in``, ``decimate_faces_out``, ``decimate_passes``,
-        ``decimate_optimal_placement``, ``decimate_planar_weight``, ``decimate_budget_reached``, ``decimate_seconds``. If topology
-        preservation stops above the budget after ``max_passes`` passes, ``decimate_budget_reached`` is False.
+        ``decimate_optimal_placement``, ``decimate_planar_weight``, ``decimate_budget_reached``,
+        ``decimate_seconds``. If topology preservation stops above the budget after ``max_passes`` passes,
+        ``decimate_budget_reached`` is False.
 
     Raises:
         BadInputError: budget < 4 or not an int; empty mesh.
@@ -268,7 +270,8 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
         # overshoot: aim lower, proportionally to how far off the last pass ended
         target = max(4, int(budget * budget / f.shape[0]))
     stats.update(decimate_faces_in=int(f0.shape[0]), decimate_faces_out=int(f.shape[0]), decimate_passes=passes,
-                 decimate_optimal_placement=optimal, decimate_planar_weight=weight, decimate_budget_reached=bool(f.shape[0] <= budget),
+                 decimate_optimal_placement=optimal, decimate_planar_weight=weight,
+                 decimate_budget_reached=bool(f.shape[0] <= budget),
                  decimate_seconds=time.perf_counter() - t0)
     return MeshData((v * size + centre).astype(np.float32), f.astype(np.int32), None, stats)
 
