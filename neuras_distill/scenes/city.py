@@ -40,7 +40,7 @@ import torch
 from ..errors import require
 from .street import (CAR_BODY, CAR_CABIN, CAR_WHEEL, EYE_HEIGHT, FOV_DEG, PITCH_DEG, SLAB_BOTTOM, CURB_H,
                      StreetField, _cyl, _lower_bound_mask, _rbox, _smoothstep, car_albedo,
-                     facade_albedo)
+                     facade_albedo, shade_materials)
 
 BLOCK = 100.0              # side streets at x = 100 j
 CROSS_HALF = 7.0           # side-street road |x - 100 j| < 7
@@ -238,30 +238,23 @@ class CityField(StreetField):
     # ------------------------------------------------------------------ appearance
     def _albedo(self, ps: torch.Tensor, n: torch.Tensor, code: torch.Tensor):
         """Albedo (M, 3) and gloss (M,) at local surface points ps with normals n and material codes."""
-        m = ps.shape[0]
-        alb = torch.empty(m, 3)
-        gloss = torch.zeros(m)
-        mat = torch.div(code, _SUB, rounding_mode="floor")
-        sub = code - mat * _SUB
         px, py, pz = ps.unbind(-1)
-        sel = torch.nonzero(mat == _MAT_TERRAIN).squeeze(1)
-        if sel.numel():
-            alb[sel] = self._ground_albedo(px[sel], py[sel], pz[sel])
-        sel = torch.nonzero(mat == _MAT_BUILDING).squeeze(1)
-        if sel.numel():
-            alb[sel], gloss[sel] = self._lot_albedo(ps[sel], n[sel], sub[sel])
-        sel = torch.nonzero(mat == _MAT_CAR).squeeze(1)
-        if sel.numel():
-            part, slot = sub[sel] % 4, torch.div(sub[sel], 4, rounding_mode="floor")
+
+        def car(sel, sub):
+            part, slot = sub % 4, torch.div(sub, 4, rounding_mode="floor")
             paint = self._paints[(_hash(slot.float(), salt=7.0) * len(PAINTS)).long().clamp(max=len(PAINTS) - 1)]
-            alb[sel], gloss[sel] = car_albedo(paint, part, pz[sel])
-        sel = torch.nonzero(mat == _MAT_TREE).squeeze(1)
-        if sel.numel():
+            return car_albedo(paint, part, pz[sel])
+
+        def tree(sel, sub):
             q = ps[sel]
             v = 0.5 + 0.5 * torch.sin(1.3 * q[:, 0] + 0.9 * q[:, 2]) * torch.sin(1.1 * q[:, 1] - 1.7 * q[:, 2])
             leaf = torch.tensor([0.16, 0.30, 0.10]) + torch.tensor([0.10, 0.12, 0.03]) * v[:, None]
-            alb[sel] = torch.where((sub[sel] == 1)[:, None], leaf, torch.tensor([0.30, 0.21, 0.13]))
-        return alb, gloss
+            return torch.where((sub == 1)[:, None], leaf, torch.tensor([0.30, 0.21, 0.13]))
+
+        return shade_materials(code, _SUB, {
+            _MAT_TERRAIN: lambda sel, sub: self._ground_albedo(px[sel], py[sel], pz[sel]),
+            _MAT_BUILDING: lambda sel, sub: self._lot_albedo(ps[sel], n[sel], sub),
+            _MAT_CAR: car, _MAT_TREE: tree})
 
     def _lot_albedo(self, ps, n, lot_id):
         """Facades of the lots ``lot_id`` (M,) (packed block, side, lot)."""

@@ -226,6 +226,26 @@ def facade_albedo(ps, n, wall, frame, glass, win, x0, x1, yf, h, back_y):
     return c, glass_m * (1.0 - roof[:, 0])
 
 
+def shade_materials(code: torch.Tensor, sub_range: int, shaders: dict) -> tuple[torch.Tensor, torch.Tensor]:
+    """Albedo (M, 3) and gloss (M,) of M surface points from their material codes (M,) long
+    (``material * sub_range + sub index``): ``shaders`` maps a material to ``fn(sel, sub)`` of the points'
+    indices (K,) and sub indices (K,), returning their albedo (K, 3) or (albedo, gloss (K,)); gloss defaults
+    to 0."""
+    alb = torch.empty(code.shape[0], 3)
+    gloss = torch.zeros(code.shape[0])
+    mat = torch.div(code, sub_range, rounding_mode="floor")
+    sub = code - mat * sub_range
+    for material, shade in shaders.items():
+        sel = torch.nonzero(mat == material).squeeze(1)
+        if sel.numel():
+            out = shade(sel, sub[sel])
+            if isinstance(out, tuple):
+                alb[sel], gloss[sel] = out
+            else:
+                alb[sel] = out
+    return alb, gloss
+
+
 def car_albedo(paint: torch.Tensor, part: torch.Tensor, z: torch.Tensor):
     """Albedo (M, 3) and gloss (M,) of car surface points: paint (M, 3), part (M,) (0 body, 1 cabin, 2 wheels),
     height above the road z (M,): a window band round the cabin, rubber wheels."""
@@ -557,43 +577,30 @@ class StreetField:
     def _albedo(self, ps: torch.Tensor, n: torch.Tensor, code: torch.Tensor):
         """Albedo (M, 3) at surface points ps (local, (M, 3)) with normals n, and a gloss weight (M,)
         (1 on glass, ~0.6 on car paint, 0 elsewhere)."""
-        m = ps.shape[0]
-        alb = torch.empty(m, 3)
-        gloss = torch.zeros(m)
-        mat = torch.div(code, _SUB, rounding_mode="floor")
-        sub = code - mat * _SUB
         px, py, pz = ps.unbind(-1)
 
-        sel = torch.nonzero(mat == _MAT_TERRAIN).squeeze(1)
-        if sel.numel():
-            alb[sel] = self._terrain_albedo(px[sel], py[sel], pz[sel])
-        sel = torch.nonzero(mat == _MAT_BUILDING).squeeze(1)
-        if sel.numel():
-            alb[sel], gloss[sel] = self._building_albedo(ps[sel], n[sel], sub[sel])
-        sel = torch.nonzero(mat == _MAT_CAR).squeeze(1)
-        if sel.numel():
-            car, part = torch.div(sub[sel], 4, rounding_mode="floor"), sub[sel] % 4
-            alb[sel], gloss[sel] = car_albedo(self._car_paint[car], part, pz[sel])
-        sel = torch.nonzero(mat == _MAT_LAMP).squeeze(1)
-        if sel.numel():
-            head = (sub[sel] == 2)[:, None]
-            alb[sel] = torch.where(head, torch.tensor([0.95, 0.93, 0.85]), torch.tensor([0.20, 0.24, 0.22]))
-        sel = torch.nonzero(mat == _MAT_TREE).squeeze(1)
-        if sel.numel():
-            crown = (sub[sel] % 2 == 1)[:, None]
+        def car(sel, sub):
+            return car_albedo(self._car_paint[torch.div(sub, 4, rounding_mode="floor")], sub % 4, pz[sel])
+
+        def lamp(sel, sub):
+            return torch.where((sub == 2)[:, None], torch.tensor([0.95, 0.93, 0.85]), torch.tensor([0.20, 0.24, 0.22]))
+
+        def tree(sel, sub):
             q = ps[sel]
             v = torch.sin(2.1 * q[:, 0] + 1.3 * q[:, 2]) * torch.sin(1.7 * q[:, 1] - 2.3 * q[:, 2])
             v = 0.5 + 0.5 * v
             leaf = torch.tensor([0.16, 0.30, 0.10]) + torch.tensor([0.10, 0.12, 0.03]) * v[:, None]
-            alb[sel] = torch.where(crown, leaf, torch.tensor([0.30, 0.21, 0.13]))
-        sel = torch.nonzero(mat == _MAT_SHELTER).squeeze(1)
-        if sel.numel():
-            part = sub[sel]
+            return torch.where((sub % 2 == 1)[:, None], leaf, torch.tensor([0.30, 0.21, 0.13]))
+
+        def shelter(sel, sub):
             c = torch.tensor([[0.55, 0.66, 0.70], [0.30, 0.32, 0.34], [0.55, 0.66, 0.70], [0.55, 0.66, 0.70],
-                              [0.52, 0.34, 0.18]])[part]
-            alb[sel] = c
-            gloss[sel] = torch.where((part == 0) | (part == 2) | (part == 3), 0.6, 0.0)
-        return alb, gloss
+                              [0.52, 0.34, 0.18]])[sub]
+            return c, torch.where((sub == 0) | (sub == 2) | (sub == 3), 0.6, 0.0)
+
+        return shade_materials(code, _SUB, {
+            _MAT_TERRAIN: lambda sel, sub: self._terrain_albedo(px[sel], py[sel], pz[sel]),
+            _MAT_BUILDING: lambda sel, sub: self._building_albedo(ps[sel], n[sel], sub),
+            _MAT_CAR: car, _MAT_LAMP: lamp, _MAT_TREE: tree, _MAT_SHELTER: shelter})
 
     @staticmethod
     def _terrain_albedo(px, py, pz):
