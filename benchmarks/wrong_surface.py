@@ -46,7 +46,7 @@ def trace_sdf(sdf, origins: torch.Tensor, dirs: torch.Tensor, iterations: int = 
 
 def view_panels(path: Path, width: int) -> tuple[np.ndarray, np.ndarray]:
     """The field and bundle panels (H, W, 3) in [0, 1] of a side-by-side image (panels ``width`` wide, 4 px
-    apart), as ``pipeline.report`` writes them."""
+    apart), as ``pipeline.evaluate._strip`` writes them."""
     from PIL import Image
 
     img = np.asarray(Image.open(path).convert("RGB")).astype(np.float64) / 255.0
