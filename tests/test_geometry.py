@@ -415,6 +415,28 @@ def test_unwrap_uvs_valid(sphere_mesh):
     assert out.stats["uv_padding_texels"] >= 2.0 and out.stats["uv_attempts"] == ["ok"]
 
 
+def test_unwrap_at_another_side_packs_the_trial_charts_again(sphere_mesh):
+    """The final unwrap at a side other than the trial's reuses the trial's charts (only packing runs again):
+    same faces, same chart count, valid non-overlapping uvs laid out for the new side."""
+    from neuras_distill.geometry.extract import Surface, trial_vertex_sources, unwrap_surface
+
+    mesh = decimate(sphere_mesh, 1500)
+    trial = unwrap(mesh, resolution=1024)
+    source = trial_vertex_sources(mesh, trial)
+    assert np.array_equal(mesh.vertices[source], trial.vertices)
+    out = unwrap_surface(Surface(mesh, None, trial, 1024), 128)
+    assert out.stats["uv_charts_from_trial"] is True and out.stats["uv_resolution"] == 128
+    assert out.stats["uv_charts"] == trial.stats["uv_charts"]
+    assert np.array_equal(out.vertices[out.faces], mesh.vertices[mesh.faces])
+    assert out.uvs.min() >= 0.0 and out.uvs.max() <= 1.0
+    overlap, covered = uv_overlap_fraction(out.uvs, out.faces)
+    assert overlap < 0.01 and covered > 0.3
+    assert out.stats["uv_padding_texels"] >= 2.0
+    # the same texel density the charts would get unwrapped afresh at 128 (within 15% of uv area)
+    fresh = unwrap(mesh, resolution=128)
+    assert abs(out.uv_area() / fresh.uv_area() - 1.0) < 0.15
+
+
 def test_unwrap_refuses_empty_and_huge(sphere_mesh):
     with pytest.raises(BadInputError, match="empty"):
         unwrap(MeshData(np.zeros((0, 3)), np.zeros((0, 3))))

@@ -28,8 +28,9 @@ def test_edges_are_the_pixels_on_both_sides_of_the_coverage_boundary():
 
 @gl
 @pytest.mark.gl
-@pytest.mark.parametrize("max_tiled_edges", [6000, 0])     # on the tiles along the edges / over the mesh's box
-def test_the_gl_pass_is_its_numpy_mirror_and_changes_only_edges(monkeypatch, max_tiled_edges):
+# on the tiles along the edges / over the mesh's box when there are too many edges / over the box (a rasterizing GPU)
+@pytest.mark.parametrize("max_tiled_edges,tiles", [(6000, True), (0, True), (6000, False)])
+def test_the_gl_pass_is_its_numpy_mirror_and_changes_only_edges(monkeypatch, max_tiled_edges, tiles):
     from test_bake import make_model
 
     import neuras_distill.playback.silhouette_strips as strips
@@ -43,8 +44,8 @@ def test_the_gl_pass_is_its_numpy_mirror_and_changes_only_edges(monkeypatch, max
     bundle = bake(make_model(h=16, w=16), mesh, (0.9, 0.8, 0.7), extra_manifest={"silhouette_blend": True})
     cams = cameras(2, 72)
     coverage = rasterize_gbuffer(mesh, cams).coverage
-    with BundleRenderer(bundle) as soft, BundleRenderer(bundle, silhouette_blend=False) as hard:
-        assert soft.silhouette_blend and not hard.silhouette_blend
+    with BundleRenderer(bundle, silhouette_tiles=tiles) as soft, BundleRenderer(bundle, silhouette_blend=False) as hard:
+        assert soft.silhouette_blend and not hard.silhouette_blend and (soft.edges is not None) == tiles
         for i in range(len(cams)):
             plain, blended = hard.render(cams, i), soft.render(cams, i)
             edges = silhouette_edges(coverage[i])

@@ -237,13 +237,31 @@ def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float
             and face_weights is None):
         return surface.trial
     t = time.perf_counter()
-    mesh = unwrap(surface.mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=int(resolution),
-                  layout_vertices=surface.layout, face_weights=face_weights)
+    if face_weights is None and surface.trial is not surface.mesh and surface.trial.uvs is not None:
+        # the trial's charts packed again at this side: computing charts is nearly all of xatlas's time
+        trial = surface.trial
+        source = trial_vertex_sources(surface.mesh, trial)
+        layout = None if surface.layout is None else np.asarray(surface.layout)[source]
+        mesh = unwrap(MeshData(trial.vertices, trial.faces, None, {}, core_faces=trial.core_faces),
+                      timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=int(resolution),
+                      layout_vertices=layout, charts=trial.uvs)
+        mesh.stats["uv_charts_from_trial"] = True
+    else:
+        mesh = unwrap(surface.mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces,
+                      resolution=int(resolution), layout_vertices=surface.layout, face_weights=face_weights)
     stats = {k: v for k, v in surface.mesh.stats.items() if not k.startswith("uv_")}
     mesh.stats = {**stats, **mesh.stats}
     mesh.stats.update(faces_final=mesh.num_faces, vertices_final=mesh.num_vertices, chart_count=mesh.stats.get("uv_charts"),
                       seconds_unwrap=time.perf_counter() - t)
     return mesh
+
+
+def trial_vertex_sources(mesh: MeshData, unwrapped: MeshData) -> np.ndarray:
+    """(V',) int64: the vertex of ``mesh`` each vertex of ``unwrapped`` (``mesh`` unwrapped: the same faces in the
+    same order and corner order, vertices split at seams) is a copy of."""
+    source = np.zeros(unwrapped.num_vertices, dtype=np.int64)
+    source[np.asarray(unwrapped.faces, dtype=np.int64).reshape(-1)] = np.asarray(mesh.faces, dtype=np.int64).reshape(-1)
+    return source
 
 
 def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int, cull_unseen: bool,

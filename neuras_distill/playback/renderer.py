@@ -57,11 +57,16 @@ class BundleRenderer:
         ctx: moderngl context (default :func:`context.get_context`).
         silhouette_blend: run the soft-silhouette pass (``silhouette.py``) after the scene; default: the
             bundle manifest's ``silhouette_blend`` (bundles from before it have none and play without).
+        silhouette_tiles: run that pass on the screen tiles along the silhouette edges, found on the host each
+            frame (``silhouette_strips.py``), instead of over the mesh's screen box; default: on software GL only.
+            A rasterizing GPU shades the box in microseconds, while finding the tiles costs the host a
+            millisecond or more per frame (the H100 drew the demo's 1080p frame in 0.73 ms of GPU time and
+            3.27 ms of wall time). Both give the same picture.
 
     Call :meth:`release` (or use as a context manager) to free the GL objects early.
     """
 
-    def __init__(self, bundle, ctx=None, silhouette_blend: bool | None = None):
+    def __init__(self, bundle, ctx=None, silhouette_blend: bool | None = None, silhouette_tiles: bool | None = None):
         moderngl = moderngl_module()
         self._mgl = moderngl
         self.ctx = ctx if ctx is not None else get_context()
@@ -102,8 +107,12 @@ class BundleRenderer:
             self._resources += [self.sky_program, self.sky_vao]
             self.sky_center = np.asarray(bundle.manifest["skybox"]["center"], np.float64).reshape(3)
         self.blend_program = self.copy_program = self.strip_vbo = None
+        self.silhouette_tiles = (software_gl(str(self.ctx.info.get("GL_RENDERER", ""))) if silhouette_tiles is None
+                                 else bool(silhouette_tiles))
+        self.edges = None
         if self.silhouette_blend:          # the pass on strips along the silhouette (silhouette_strips.py)
-            self.edges = SilhouetteEdges(mesh.vertices, mesh.faces)
+            if self.silhouette_tiles:
+                self.edges = SilhouetteEdges(mesh.vertices, mesh.faces)
             self.blend_program = self.ctx.program(vertex_shader=STRIP_VERTEX_SHADER,
                                                   fragment_shader=SILHOUETTE_FRAGMENT_SHADER)
             self.copy_program = self.ctx.program(vertex_shader=STRIP_VERTEX_SHADER,
@@ -239,10 +248,13 @@ class BundleRenderer:
         """The silhouette pass on the screen tiles along the mesh's silhouette and boundary edges
         (silhouette_strips.py): blend those tiles of the scene into ``blended``, then copy them back. Over the
         mesh's whole screen box (and a full-frame copy) it cost the demo 30 of its 75 ms at 1080p on llvmpipe;
-        every pixel it changes lies in the tiles, so the picture is the same."""
+        every pixel it changes lies in the tiles, so the picture is the same. Without ``silhouette_tiles`` (a
+        rasterizing GPU) it runs over the box."""
         ctx = self.ctx
         w, h = size
-        quads = self.edges.pass_quads(c2w[:3, 3], mvp, w, h, screen_box(self._bounds, mvp, w, h))
+        box = screen_box(self._bounds, mvp, w, h)
+        quads = (self.edges.pass_quads(c2w[:3, 3], mvp, w, h, box) if self.edges is not None
+                 else SilhouetteEdges.rect_quads(*box, w, h))
         if len(quads) == 0:
             return
         data = quads.tobytes()
