@@ -62,6 +62,8 @@ def summary_row(result: dict) -> dict:
         "bundle_pipelined_ms": r["frame_time_ms"].get("bundle_pipelined"),
         "speedup_pipelined": r.get("speedup_pipelined"), "precision": r["device"].get("precision"),
         "evaluate_parts": r.get("evaluate_seconds"), "peak_rss_mb": r.get("peak_rss_mb"),
+        "geometry_parts": {k: round(v, 2) for k, v in r.get("mesh_stats", {}).items()
+                           if k.startswith("seconds_") and isinstance(v, (int, float))},
         "peak_gpu_mb": r.get("peak_gpu_mb"),
         "steps": r["training_plan"].get("steps"), "plan": r["training_plan"].get("reason"),
         "device": r["device"],
@@ -85,7 +87,7 @@ def main() -> int:
         print(json.dumps(row), flush=True)
         if result["rc"] != 0:
             print(result["log_tail"], flush=True)
-    (args.out / "summary.json").write_text(json.dumps(rows, indent=1))
+        (args.out / "summary.json").write_text(json.dumps(rows, indent=1))   # after each scene: a cut-off run keeps it
     print(f"\n{'scene':10s} {'res':>10s} {'wall s':>7s} {'field ms':>9s} {'bundle ms':>9s} {'speedup':>8s} "
           f"{'PSNR':>6s} {'FLIP':>6s} {'steps':>6s}")
     for row in rows:
@@ -96,6 +98,8 @@ def main() -> int:
         print(f"{row['scene']:10s} {res:>10s} {row['wall_s']:7.1f} {row['field_ms']:9.1f} {row['bundle_ms']:9.2f} "
               f"{row['speedup']:8.1f} {row['psnr']:6.2f} {row['flip']:6.4f} {row['steps']!s:>6s}")
         print("           stages: " + ", ".join(f"{k} {v:.1f}" for k, v in row["stage_seconds"].items()))
+        if row.get("geometry_parts"):
+            print("           geometry: " + ", ".join(f"{k[8:]} {v:.1f}" for k, v in row["geometry_parts"].items()))
         if row.get("evaluate_parts"):
             print("           evaluate: " + ", ".join(f"{k} {v:.1f}" for k, v in row["evaluate_parts"].items()))
         if row.get("bundle_pipelined_ms"):
