@@ -213,6 +213,9 @@ class EvalConfig:
     width: int = 1920
     """Width of held-out frames for PSNR/SSIM and FPS (height follows the cameras' aspect ratio); 0: the
     cameras' own size."""
+    max_upscale: float = 2.0
+    """Held-out frames are at most this many times the cameras' own width (``decisions.MAX_UPSCALE``); 0: no
+    cap, e.g. to time a dataset of small images at a display's 1920 pixels."""
     fps_frames: int = 30
     """Timed bundle frames (after warm-up) for the median frame time."""
     runtime_steps: list[int] = field(default_factory=lambda: [32, 64, 128])
@@ -241,6 +244,8 @@ class DistillConfig:
         require(g.face_budget <= MAX_UNWRAP_FACES,
                 f"face budget {g.face_budget} is more than the UV unwrap handles ({MAX_UNWRAP_FACES} faces); "
                 f"pass --face-budget {MAX_UNWRAP_FACES} or less")
+        require(self.eval.max_upscale >= 0, f"eval.max_upscale must be 0 (no cap) or positive, got "
+                                            f"{self.eval.max_upscale}")
         require(g.grid_resolution >= 16, f"grid resolution must be at least 16, got {g.grid_resolution}")
         require(0.0 <= g.cull_margin_deg < 90.0, f"cull_margin_deg must be in 0..90 degrees, got {g.cull_margin_deg}")
         _require_choice(self.texture.soft_silhouettes, Mode, "soft_silhouettes")

@@ -90,9 +90,14 @@ def test_skybox_texture_and_eval_settings_are_validated():
                         ({"skybox": {"layers": 0}}, "layer count"),
                         ({"skybox": {"near": 100.0, "far": 10.0}}, "must nest"),
                         ({"texture": {"resolution": 8}}, "texture resolution"),
-                        ({"eval": {"width": 8}}, "at least 16")):
+                        ({"eval": {"width": 8}}, "at least 16"),
+                        ({"eval": {"max_upscale": -1.0}}, "max_upscale")):
         with pytest.raises(BadInputError, match=needle):
             load_config(overrides=bad)
+    from neuras_distill.pipeline.decisions import capped_width
+
+    assert capped_width(1920, 192) == 384 and capped_width(1920, 192, 0.0) == 1920 and capped_width(640, 192, 0) == 640
+    assert capped_width(1920, 1920) == 1920 and capped_width(1920, 192, 4.0) == 768
 
 
 def test_a_config_file_changes_a_scenes_own_preset_instead_of_replacing_it(tmp_path):

@@ -282,6 +282,27 @@ def test_playback_of_a_two_layer_bundle_matches_the_torch_reference(tmp_path, sh
 
 @gl
 @pytest.mark.gl
+def test_the_depth_prepass_shades_the_same_pixels(tmp_path):
+    """The depth-only prepass (on by default for two-layer meshes on a rasterizing GPU) changes no pixel: the
+    same vertex stage gives the same depths, and the shading pass keeps only the fragment that won them."""
+    from neuras_distill.playback.renderer import BundleRenderer
+
+    bg = np.float32([0.1, 0.2, 0.3])
+    cams = cameras(3, 80)
+    for mesh in (two_spheres(), two_spheres(False)):
+        bundle = bake(make_model(mesh_layers=2 if mesh.core_faces is not None else 1), mesh, bg)
+        with BundleRenderer(bundle, depth_prepass=True) as pre, BundleRenderer(bundle, depth_prepass=False) as one:
+            assert pre.depth_vao is not None and one.depth_vao is None
+            for i in range(len(cams)):
+                a, b = pre.render(cams, i), one.render(cams, i)
+                assert (a != b).any(axis=-1).mean() < 1e-3       # ties between coplanar faces at most
+                assert (np.abs(a - bg).max(axis=-1) > 2 / 255).mean() > 0.05   # the mesh is in view
+        with BundleRenderer(bundle) as default:                  # llvmpipe here: no prepass
+            assert default.depth_vao is None
+
+
+@gl
+@pytest.mark.gl
 def test_invalid_core_faces_is_refused():
     from neuras_distill.playback.rasterize import rasterize_gbuffer
 
@@ -406,3 +427,28 @@ def test_the_core_drops_the_view_direction_only_at_the_colour_level_of_a_view_in
     forced = load_config(overrides={"texture": {"view_dependence": "on"}})
     assert core_view_dependence(Field(False), mesh, forced, True, record) is None
     assert not record.items
+
+
+def test_the_fringe_threshold_scales_with_the_training_views_width():
+    """``choices.fringe_shell``: the same soft fringe, as a share of the view, gets the shell whatever width the
+    teacher renders at (8 px at 640 wide: 4.8 px at 384); a fringe of 5.6 px is wide at 384 and narrow at 640."""
+    from types import SimpleNamespace
+
+    from neuras_distill.pipeline.choices import Decisions, fringe_shell
+    from neuras_distill.pipeline.decisions import fringe_width_pixels
+
+    def disk(width: int, ramp_px: float) -> np.ndarray:
+        """(1, H, W) opacity of a disk a third of the view wide whose edge fades over ``ramp_px`` pixels."""
+        h = width * 9 // 16
+        y, x = np.mgrid[:h, :width] + 0.5
+        r = np.hypot(x - width / 2, y - h / 2)
+        return np.clip((width / 6 - r) / ramp_px + 0.5, 0.0, 1.0)[None].astype(np.float32)
+
+    constant = SimpleNamespace(constant=True)
+    for width, ramp, kept in ((384, 6.2, True), (640, 6.2, False), (640, 10.0, True), (1280, 10.0, False)):
+        opacity = disk(width, ramp)
+        record = Decisions()
+        assert fringe_shell("auto", opacity, constant, record) == kept, (width, ramp, fringe_width_pixels(opacity))
+        assert bool(record.left_out()) == (not kept)
+        if not kept:
+            assert f"in views {width} wide" in record.left_out()[-1]["reason"]

@@ -126,16 +126,19 @@ def silhouette_blend(mode: str, fringe_pixels: float, train, test, record: Decis
 
 def fringe_shell(mode: str, opacity: np.ndarray, background: Background, record: Decisions) -> bool:
     """Whether the mesh should enclose the field's soft fringe (see ``geometry.marching``): when the fringe is
-    at least ``decisions.FRINGE_MIN_PIXELS`` wide in the training views (``opacity``: (N, H, W) teacher
-    opacities) and the background is one constant colour (over it, a partly opaque fringe pixel is one colour
+    at least ``decisions.FRINGE_MIN_PIXELS`` wide in training views ``decisions.FRINGE_REFERENCE_WIDTH`` wide
+    (scaled with the views' width; ``opacity``: (N, H, W) teacher opacities) and the background is one constant colour (over it, a partly opaque fringe pixel is one colour
     per view and angle, which the texture learns with the facing input; over skyboxes it is not)."""
     if mode != "auto":
         return mode == "on"
     width = decisions.fringe_width_pixels(opacity)
-    if width < decisions.FRINGE_MIN_PIXELS:
+    view_width = int(np.asarray(opacity).shape[-1])
+    minimum = decisions.FRINGE_MIN_PIXELS * view_width / decisions.FRINGE_REFERENCE_WIDTH
+    if width < minimum:
         record.leave_out("soft-fringe shell",
-                         f"the field's fringe is {width:.1f} training pixels wide (< "
-                         f"{decisions.FRINGE_MIN_PIXELS:g}): the mesh stays at the surface level", fringe_pixels=width)
+                         f"the field's fringe is {width:.1f} training pixels wide (< {minimum:.3g} in views "
+                         f"{view_width} wide): the mesh stays at the surface level", fringe_pixels=width,
+                         view_width=view_width)
         return False
     if not background.constant:
         record.leave_out("soft-fringe shell",

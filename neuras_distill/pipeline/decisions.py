@@ -117,9 +117,12 @@ PIXELS_PER_TEXEL = 2.0
 MAX_UPSCALE = 2.0
 
 
-def capped_width(width: int, native_width: int) -> int:
-    """The render width for a configured ``width`` and cameras ``native_width`` wide (:data:`MAX_UPSCALE`)."""
-    return min(int(width), int(round(MAX_UPSCALE * native_width)))
+def capped_width(width: int, native_width: int, max_upscale: float = MAX_UPSCALE) -> int:
+    """The render width for a configured ``width`` and cameras ``native_width`` wide, at most ``max_upscale``
+    times their width (0: no cap)."""
+    if not max_upscale:
+        return int(width)
+    return min(int(width), int(round(max_upscale * native_width)))
 
 
 def texel_density_resolution(mesh: MeshData, cameras, *, pixels_per_texel: float = PIXELS_PER_TEXEL,
@@ -284,6 +287,12 @@ def training_steps(used_texels: float, samples_per_step: int, affordable_steps: 
 #: a voxel of offset showed surface colour where the field shows background. The NeuS fixture (a fringe
 #: of 3.1 px at 400 wide) scored 31.6 dB with the shell and 33.1 dB without.
 FRINGE_MIN_PIXELS = 8.0
+#: ... in views this many pixels wide (the teacher's default width, where those measurements were made): the
+#: threshold scales with the training views' width, so a teacher held at 2 x a small dataset's width
+#: (:data:`MAX_UPSCALE`) decides as at 640. The from-ngp ball's 192-pixel cameras (teacher at 384): a 5.6 px
+#: fringe, 9.3 px at 640; judged unscaled, its shell was left out and held-out PSNR at 1080p fell from 34.4 to
+#: 30.8 dB (H200, session 22).
+FRINGE_REFERENCE_WIDTH = 640
 
 #: The soft-silhouette pass (``playback/silhouette.py``) runs when the field's fringe is at least this many
 #: pixels wide at the playing resolution: it blends one pixel on each side of the mesh's edge. On a field with a

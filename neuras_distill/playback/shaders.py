@@ -28,6 +28,7 @@ in vec3 in_normal;
 out vec2 v_uv;
 out vec3 v_world;
 out vec3 v_normal;
+invariant gl_Position;  // bit-identical depth in the depth-only prepass (renderer.py) and the shading pass
 void main() {
     v_uv = in_uv;
     v_world = in_position;
@@ -75,3 +76,10 @@ def shader_variant(source: str, mesh_layer: int) -> str:
         return source
     first, rest = source.split("\n", 1)
     return f"{first}\n#define MESH_LAYER {int(mesh_layer)}\n{rest}"
+
+
+#: The depth-only prepass of playback (``renderer.BundleRenderer``, ``depth_prepass``): no colour output.
+DEPTH_ONLY_FRAGMENT_SHADER = """#version 330
+void main() {
+}
+"""

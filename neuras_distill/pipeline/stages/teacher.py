@@ -25,12 +25,14 @@ def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
     ctx.clock.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
     train_full, test_full = cameras.split(cfg.cameras.test_every)
     train_width = decisions.capped_width(cfg.teacher.train_width, train_full.width)
-    eval_width = decisions.capped_width(cfg.eval.width, test_full.width) if cfg.eval.width else test_full.width
+    eval_width = (decisions.capped_width(cfg.eval.width, test_full.width, cfg.eval.max_upscale) if cfg.eval.width
+                  else test_full.width)
     if (train_width, eval_width) != (cfg.teacher.train_width, cfg.eval.width or test_full.width):
         ctx.decisions.leave_out(
             "renders beyond the cameras' resolution",
             f"the cameras are {test_full.width} pixels wide: the teacher renders at {train_width} and the held-out "
-            f"frames at {eval_width} pixels (at most {decisions.MAX_UPSCALE:g}x the cameras' width), not the "
+            f"frames at {eval_width} pixels (the teacher at most {decisions.MAX_UPSCALE:g}x the cameras' width, the "
+            f"held-out frames at most eval.max_upscale = {cfg.eval.max_upscale:g}x; 0 lifts that cap), not the "
             f"configured {cfg.teacher.train_width} / {cfg.eval.width}", train_width=train_width,
             eval_width=eval_width)
     train = train_full.resized(train_width)
