@@ -127,8 +127,9 @@ def silhouette_blend(mode: str, fringe_pixels: float, train, test, record: Decis
 def fringe_shell(mode: str, opacity: np.ndarray, background: Background, record: Decisions) -> bool:
     """Whether the mesh should enclose the field's soft fringe (see ``geometry.marching``): when the fringe is
     at least ``decisions.FRINGE_MIN_PIXELS`` wide in training views ``decisions.FRINGE_REFERENCE_WIDTH`` wide
-    (scaled with the views' width; ``opacity``: (N, H, W) teacher opacities) and the background is one constant colour (over it, a partly opaque fringe pixel is one colour
-    per view and angle, which the texture learns with the facing input; over skyboxes it is not)."""
+    (scaled with the views' width; ``opacity``: (N, H, W) teacher opacities) and the background is one constant
+    colour (over it, a partly opaque fringe pixel is one colour per view and angle, which the texture learns with
+    the facing input; over skyboxes it is not)."""
     if mode != "auto":
         return mode == "on"
     width = decisions.fringe_width_pixels(opacity)
