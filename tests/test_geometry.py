@@ -437,6 +437,27 @@ def test_unwrap_at_another_side_packs_the_trial_charts_again(sphere_mesh):
     assert abs(out.uv_area() / fresh.uv_area() - 1.0) < 0.15
 
 
+def test_a_rough_layer_is_laid_out_from_smoothed_positions(sphere_mesh):
+    """``extract.chart_layout``: a crumpled surface (a trained NeRF's level set after decimation) gets far fewer
+    UV charts when xatlas lays them out from smoothed positions; a smooth layer keeps its own vertices."""
+    from neuras_distill.geometry.extract import chart_layout
+
+    mesh = decimate(sphere_mesh, 2000)
+    assert chart_layout(mesh) is mesh.vertices and "layout_smoothing_steps" not in mesh.stats
+    rng = np.random.default_rng(0)
+    normals = mesh.vertices / np.linalg.norm(mesh.vertices, axis=1, keepdims=True)
+    edge = float(np.linalg.norm(mesh.vertices[mesh.faces[:, 0]] - mesh.vertices[mesh.faces[:, 1]], axis=1).mean())
+    crumpled = MeshData(mesh.vertices + (0.6 * edge * rng.standard_normal((mesh.num_vertices, 1)) * normals)
+                        .astype(np.float32), mesh.faces, None, {"smoothing_steps": 30})
+    layout = chart_layout(crumpled)
+    assert layout.shape == crumpled.vertices.shape and crumpled.stats["layout_smoothing_steps"] > 0
+    raw = unwrap(crumpled, resolution=256)
+    smooth = unwrap(crumpled, resolution=256, layout_vertices=layout)
+    print(f"charts: crumpled {raw.stats['uv_charts']}, laid out smoothed {smooth.stats['uv_charts']}")
+    assert smooth.stats["uv_charts"] < 0.5 * raw.stats["uv_charts"]
+    assert np.array_equal(smooth.vertices[smooth.faces], crumpled.vertices[crumpled.faces])  # geometry not moved
+
+
 def test_unwrap_refuses_empty_and_huge(sphere_mesh):
     with pytest.raises(BadInputError, match="empty"):
         unwrap(MeshData(np.zeros((0, 3)), np.zeros((0, 3))))

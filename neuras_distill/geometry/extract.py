@@ -256,6 +256,35 @@ def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float
     return mesh
 
 
+#: Umbrella-operator steps (weight 0.5) smoothing the positions a rough layer's charts are laid out from.
+LAYOUT_SMOOTHING_STEPS = 20
+
+
+def chart_layout(layer: MeshData) -> np.ndarray:
+    """(V, 3) positions xatlas makes ``layer``'s charts from: the vertices themselves (the same array), or for a
+    rough layer (smoothed after marching cubes: ``stats['smoothing_steps'] > 0``, a trained NeRF's wrinkled
+    level set) those vertices smoothed again by :data:`LAYOUT_SMOOTHING_STEPS` umbrella steps. Decimation folds
+    such a surface into crumples smaller than a texel, and xatlas then cuts a chart at every fold: the
+    from-ngp ball's 21k-face core came out as 10053 charts (2 faces each; 58 s of xatlas, 7.5% of the atlas on
+    the surface). Laid out from the smoothed positions: 6256 charts, 18 s, 11.4%. The geometry drawn is not
+    moved; stats ``layout_smoothing_steps``."""
+    if not int(layer.stats.get("smoothing_steps", 0) or 0) or layer.num_faces == 0:
+        return layer.vertices
+    from scipy.sparse import coo_matrix
+
+    v = np.asarray(layer.vertices, dtype=np.float64)
+    f = np.asarray(layer.faces, dtype=np.int64)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    edges = np.concatenate([edges, edges[:, ::-1]])
+    adjacency = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(v), len(v))).tocsr()
+    adjacency.data[:] = 1.0                       # shared edges counted once
+    degree = np.maximum(np.asarray(adjacency.sum(axis=1)).reshape(-1), 1.0)[:, None]
+    for _ in range(LAYOUT_SMOOTHING_STEPS):
+        v = v + 0.5 * (adjacency @ v / degree - v)
+    layer.stats["layout_smoothing_steps"] = LAYOUT_SMOOTHING_STEPS
+    return v
+
+
 def trial_vertex_sources(mesh: MeshData, unwrapped: MeshData) -> np.ndarray:
     """(V',) int64: the vertex of ``mesh`` each vertex of ``unwrapped`` (``mesh`` unwrapped: the same faces in the
     same order and corner order, vertices split at seams) is a copy of."""
@@ -290,16 +319,18 @@ def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int,
             timings["cull"] = timings.get("cull", 0.0) + time.perf_counter() - t
             counts["culled"] += int(layer.stats.get("culled_faces", 0))
         done.append(layer)
+    layouts = [chart_layout(layer) for layer in done]
     if len(done) == 1:
-        mesh, layout = done[0], None
+        mesh = done[0]
+        layout = None if layouts[0] is done[0].vertices else layouts[0]
     else:
         core, shell = done
         stats = dict(core.stats, shell_faces=shell.num_faces,
                      **{f"shell_{k}": v for k, v in shell.stats.items()
-                        if k.startswith(("clean_", "decimate_", "cull_", "smooth")) and isinstance(v, (int, float))})
+                        if k.startswith(("clean_", "decimate_", "cull_", "smooth", "layout_")) and isinstance(v, (int, float))})
         mesh = MeshData.two_layers(core, shell, stats)
-        centre = shell.vertices.astype(np.float64).mean(axis=0)
-        layout = np.concatenate([core.vertices, centre + SHELL_TEXEL_SCALE * (shell.vertices - centre)])
+        centre = layouts[1].mean(axis=0)
+        layout = np.concatenate([layouts[0], centre + SHELL_TEXEL_SCALE * (layouts[1] - centre)])
     mesh.stats.update(faces_marching_cubes=n_mc, faces_after_clean=counts["clean"],
                       faces_after_decimation=counts["dec"], culled_faces=counts["culled"],
                       **{f"seconds_{k}": v for k, v in timings.items()})
