@@ -327,7 +327,8 @@ def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int,
         core, shell = done
         stats = dict(core.stats, shell_faces=shell.num_faces,
                      **{f"shell_{k}": v for k, v in shell.stats.items()
-                        if k.startswith(("clean_", "decimate_", "cull_", "smooth", "layout_")) and isinstance(v, (int, float))})
+                        if k.startswith(("clean_", "decimate_", "cull_", "smooth", "layout_"))
+                        and isinstance(v, (int, float))})
         mesh = MeshData.two_layers(core, shell, stats)
         centre = layouts[1].mean(axis=0)
         layout = np.concatenate([layouts[0], centre + SHELL_TEXEL_SCALE * (layouts[1] - centre)])
