@@ -114,9 +114,46 @@ def test_a_level_set_that_unwraps_is_kept(monkeypatch):
 
 
 def test_a_level_set_xatlas_cannot_unwrap_is_meshed_from_the_depth_maps(monkeypatch):
-    mesh, calls = _extract(FoamBall(), monkeypatch, fail_first_unwrap=True)
+    from neuras_distill.scenes.analytic import SphereSDF
+
+    mesh, calls = _extract(SphereSDF(radius=RADIUS).density(), monkeypatch, fail_first_unwrap=True)
     assert len(calls) == 2
     assert mesh.stats["mc_surface_from"] == "fused depth maps"
     assert "simulated" in mesh.stats["level_set_unwrap_failure"]
     r = np.linalg.norm(mesh.vertices, axis=1)
     assert np.percentile(r, 5) > RADIUS - 0.05 and mesh.uvs is not None
+
+
+def test_a_foam_level_set_is_meshed_from_the_depth_maps_before_any_unwrap(monkeypatch):
+    """The foam ball's level set (pores in its crust, a labyrinth inside) is judged before it is unwrapped:
+    the fused depths replace it and only they are unwrapped."""
+    mesh, calls = _extract(FoamBall(), monkeypatch, fail_first_unwrap=False)
+    print({k: v for k, v in mesh.stats.items() if k.startswith(("level_set", "fused_depths"))})
+    assert len(calls) == 1 and mesh.stats["surface_from_depths"] is True
+    assert mesh.stats["mc_surface_from"] == "fused depth maps"
+    assert mesh.stats["level_set_defect"] in ("perforated", "tangled")
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    assert np.percentile(r, 5) > RADIUS - 0.05 and mesh.uvs is not None
+
+
+def test_a_tangled_level_set_is_meshed_from_the_depth_maps(monkeypatch):
+    """A decimated level set whose core is tangled (over ``TANGLED_FOLDED_FRACTION`` of its adjacent faces
+    folded: simulated here on the sphere's level set) is meshed again from the fused depths, which are kept
+    because they are less folded and miss no more opaque pixels; the smooth sphere alone is kept as is (above)."""
+    from neuras_distill.geometry import extract
+    from neuras_distill.scenes.analytic import SphereSDF
+
+    real = extract.core_folded_fraction
+    seen = []
+
+    def folded(mesh):
+        seen.append(real(mesh))
+        return 0.5 if len(seen) == 1 else seen[-1]
+
+    monkeypatch.setattr(extract, "core_folded_fraction", folded)
+    mesh, calls = _extract(SphereSDF(radius=RADIUS).density(), monkeypatch, fail_first_unwrap=False)
+    assert len(calls) == 1 and seen[0] < 0.01 and seen[1] < extract.TANGLED_FOLDED_FRACTION   # one unwrap: the kept one
+    assert mesh.stats["level_set_defect"] == "tangled" and mesh.stats["surface_from_depths"] is True
+    assert mesh.stats["mc_surface_from"] == "fused depth maps" and mesh.stats["level_set_folded"] == 0.5
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    assert abs(np.median(r) - RADIUS) < 0.03

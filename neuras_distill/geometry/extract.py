@@ -18,7 +18,7 @@ from ..render.volume import FRINGE_OPACITY
 from .colour_level import termination_points
 from .depth_fusion import fused_depth_sdf
 from .cleanup import clean_mesh, decimate, smooth_rough
-from .marching import marching_cubes_field
+from .marching import folded_fraction, marching_cubes_field
 from .mesh import MeshData
 from .unwrap import MAX_UNWRAP_FACES, UnwrapFailed, unwrap
 from .visibility import cull_unseen_faces, missed_opaque_fraction
@@ -48,6 +48,12 @@ FUSION_TRUNCATION_VOXELS = 6.0
 LEVEL_SET_MAX_MISSED = 0.02
 #: Pixels inside the opaque region that count for that test: holes, not the silhouette's rim.
 HOLE_INSET_PX = 2
+#: A density field's decimated level set whose core has more than this share of adjacent faces folded (normals
+#: over 90 degrees apart, ``marching.folded_fraction``) is tangled: the from-ngp ball's colour-level core, inside
+#: its noisy fog, came out of decimation with 49% folded (smoothing its positions does not untangle it; xatlas
+#: cut it into 6-10 thousand charts, the played surface shows facets). Its fused surface depths: 2.3% folded,
+#: 1722 charts, 34.16 -> 35.04 dB, FLIP 0.0285 -> 0.0269 (same teacher). The demo's level set: 0.05%.
+TANGLED_FOLDED_FRACTION = 0.10
 
 
 @dataclass
@@ -174,7 +180,8 @@ def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, 
             return fused_depth_sdf(spec.origin, spec.spacing, spec.shape, train_cameras, depths, opacities,
                                    truncation=FUSION_TRUNCATION_VOXELS * float(spec.spacing.max()), opaque=opaque)
 
-    def attempt(depth_fusion) -> Surface:
+    def simplified(depth_fusion) -> Surface:
+        """Marching cubes, cleanup, decimation and culling; the trial unwrap is :func:`with_trial`'s."""
         timings: dict = {}
         t = time.perf_counter()
         mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check,
@@ -182,7 +189,9 @@ def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, 
         timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling (and the fusion)
         mesh, layout = _simplify(mesh, train_cameras, timings, face_budget=face_budget, cull_unseen=cull_unseen,
                                  cull_margin_deg=cull_margin_deg)
-        surface = Surface(mesh, layout, mesh, int(trial_resolution))
+        return Surface(mesh, layout, mesh, int(trial_resolution))
+
+    def with_trial(surface: Surface) -> Surface:
         surface.trial = unwrap_surface(surface, trial_resolution, unwrap_timeout_s=unwrap_timeout_s,
                                        max_unwrap_faces=max_unwrap_faces)
         return surface
@@ -191,40 +200,54 @@ def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, 
         if fusion is None:
             raise BadInputError("geometry.surface = depths needs a density field and the teacher's surface depths; "
                                 "use geometry.surface = auto")
-        surface = attempt(fusion)
+        surface = with_trial(simplified(fusion))
         surface.mesh.stats["surface_from_depths"] = True
         surface.mesh.stats["seconds_surface"] = time.perf_counter() - t_start
         return surface
+    surface = simplified(None)
+    if fusion is not None:       # perforated or tangled level sets: chosen before either is unwrapped
+        surface = _unless_perforated(surface, simplified, fusion, train_cameras, field_depth[2])
     try:
-        surface = attempt(None)
+        surface = with_trial(surface)
     except UnwrapFailed as failure:
-        if fusion is None:
+        if fusion is None or surface.mesh.stats.get("surface_from_depths"):
             raise
         # the level set is a trained NeRF's noise (tunnels, pockets): mesh what the cameras saw instead
-        surface = attempt(fusion)
+        surface = with_trial(simplified(fusion))
         surface.mesh.stats["level_set_unwrap_failure"] = str(failure)
         surface.trial.stats["level_set_unwrap_failure"] = str(failure)
-    else:
-        if fusion is not None:
-            surface = _unless_perforated(surface, attempt, fusion, train_cameras, field_depth[2])
     surface.mesh.stats["seconds_surface"] = time.perf_counter() - t_start
     return surface
 
 
-def _unless_perforated(surface: Surface, attempt, fusion, cameras, opacities) -> Surface:
-    """``surface`` (a density field's level set), or its fused-depth surface when the level set misses more
-    than :data:`LEVEL_SET_MAX_MISSED` of the opaque training pixels and the fused one misses fewer."""
+def core_folded_fraction(mesh: MeshData) -> float:
+    """``marching.folded_fraction`` of the mesh's core layer (all of it for one layer)."""
+    faces = mesh.faces if mesh.core_faces is None else mesh.faces[:int(mesh.core_faces)]
+    return float(folded_fraction(mesh.vertices, faces)) if len(faces) else 0.0
+
+
+def _unless_perforated(surface: Surface, simplified, fusion, cameras, opacities) -> Surface:
+    """``surface`` (a density field's simplified level set, not unwrapped yet), or its fused-depth surface
+    (``simplified(fusion)``) when the level set misses more
+    than :data:`LEVEL_SET_MAX_MISSED` of the opaque training pixels and the fused one misses fewer, or when the
+    level set's decimated core is tangled (over :data:`TANGLED_FOLDED_FRACTION` of its adjacent faces folded)
+    and the fused one is less so without missing more than that share of pixels."""
     missed = missed_opaque_fraction(surface.mesh, cameras, opacities, threshold=0.5, inset=HOLE_INSET_PX)
-    for mesh in (surface.mesh, surface.trial):
-        mesh.stats["level_set_missed"] = missed
-    if missed <= LEVEL_SET_MAX_MISSED:
+    folded = core_folded_fraction(surface.mesh)
+    surface.mesh.stats.update(level_set_missed=missed, level_set_folded=folded)
+    perforated, tangled = missed > LEVEL_SET_MAX_MISSED, folded > TANGLED_FOLDED_FRACTION
+    if not (perforated or tangled):
         return surface
-    fused = attempt(fusion)
+    fused = simplified(fusion)
     fused_missed = missed_opaque_fraction(fused.mesh, cameras, opacities, threshold=0.5, inset=HOLE_INSET_PX)
-    keep = fused if fused_missed < missed else surface
-    for mesh in (keep.mesh, keep.trial):
-        mesh.stats.update(level_set_missed=missed, fused_depths_missed=fused_missed,
-                          surface_from_depths=keep is fused)
+    fused_folded = core_folded_fraction(fused.mesh)
+    if perforated:
+        keep = fused if fused_missed < missed else surface
+    else:
+        keep = fused if fused_folded < folded and fused_missed <= max(missed, LEVEL_SET_MAX_MISSED) else surface
+    keep.mesh.stats.update(level_set_missed=missed, fused_depths_missed=fused_missed, level_set_folded=folded,
+                           fused_depths_folded=fused_folded, surface_from_depths=keep is fused,
+                           level_set_defect="perforated" if perforated else "tangled")
     return keep
 
 

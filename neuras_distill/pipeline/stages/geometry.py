@@ -130,14 +130,27 @@ def _record_surface_source(ctx: RunContext, stats: dict) -> None:
     if "fused_depths_missed" not in stats:
         return
     missed, fused = 100 * stats["level_set_missed"], 100 * stats["fused_depths_missed"]
+    measured = dict(level_set_missed=missed, fused_depths_missed=fused)
+    if stats.get("level_set_defect") == "tangled":
+        folded, fused_folded = 100 * stats["level_set_folded"], 100 * stats["fused_depths_folded"]
+        measured.update(level_set_folded=folded, fused_depths_folded=fused_folded)
+        if stats.get("surface_from_depths"):
+            ctx.decisions.keep("surface from fused depths", f"the density's decimated level set is tangled "
+                               f"({folded:.0f}% of adjacent faces folded); the teacher's fused surface depths: "
+                               f"{fused_folded:.1f}% folded, {fused:.1f}% of the opaque training pixels missed",
+                               **measured)
+        else:
+            ctx.decisions.leave_out("surface from fused depths", f"the level set is tangled ({folded:.0f}% of "
+                                    f"adjacent faces folded) but the fused depths are no better ({fused_folded:.1f}% "
+                                    f"folded, {fused:.1f}% of the opaque training pixels missed)", **measured)
+        return
     if stats.get("surface_from_depths"):
         ctx.decisions.keep("surface from fused depths", f"the density's level set missed {missed:.1f}% of the "
                            f"opaque training pixels (a perforated surface); the teacher's fused surface depths "
-                           f"miss {fused:.1f}%", level_set_missed=missed, fused_depths_missed=fused)
+                           f"miss {fused:.1f}%", **measured)
     else:
         ctx.decisions.leave_out("surface from fused depths", f"the level set missed {missed:.1f}% of the opaque "
-                                f"training pixels but the fused depths missed more ({fused:.1f}%)",
-                                level_set_missed=missed, fused_depths_missed=fused)
+                                f"training pixels but the fused depths missed more ({fused:.1f}%)", **measured)
 
 
 def _record_atlas_side(ctx: RunContext, tex_res: int, density: dict) -> None:
