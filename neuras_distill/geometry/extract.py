@@ -52,8 +52,10 @@ HOLE_INSET_PX = 2
 #: over 90 degrees apart, ``marching.folded_fraction``) is tangled: the from-ngp ball's colour-level core, inside
 #: its noisy fog, came out of decimation with 49% folded (smoothing its positions does not untangle it; xatlas
 #: cut it into 6-10 thousand charts, the played surface shows facets). Its fused surface depths: 2.3% folded,
-#: 1722 charts, 34.16 -> 35.04 dB, FLIP 0.0285 -> 0.0269 (same teacher). The demo's level set: 0.05%.
-TANGLED_FOLDED_FRACTION = 0.10
+#: 1722 charts, 34.16 -> 35.04 dB, FLIP 0.0285 -> 0.0269 (same teacher). The demo's level set: 0.05%; the NGP
+#: bunny's at the end-to-end test's small settings 10%, where its fused depths spread faces over the fog under
+#: the base (mesh median height 0.04 instead of the bunny's 0.1-0.6): rough, not tangled.
+TANGLED_FOLDED_FRACTION = 0.20
 
 
 @dataclass
