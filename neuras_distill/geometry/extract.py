@@ -208,7 +208,7 @@ def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, 
         return surface
     surface = simplified(None)
     if fusion is not None:       # perforated or tangled level sets: chosen before either is unwrapped
-        surface = _unless_perforated(surface, simplified, fusion, train_cameras, field_depth[2])
+        surface = _level_set_or_fused_depths(surface, simplified, fusion, train_cameras, field_depth[2])
     try:
         surface = with_trial(surface)
     except UnwrapFailed as failure:
@@ -228,12 +228,12 @@ def core_folded_fraction(mesh: MeshData) -> float:
     return float(folded_fraction(mesh.vertices, faces)) if len(faces) else 0.0
 
 
-def _unless_perforated(surface: Surface, simplified, fusion, cameras, opacities) -> Surface:
+def _level_set_or_fused_depths(surface: Surface, simplified, fusion, cameras, opacities) -> Surface:
     """``surface`` (a density field's simplified level set, not unwrapped yet), or its fused-depth surface
-    (``simplified(fusion)``) when the level set misses more
-    than :data:`LEVEL_SET_MAX_MISSED` of the opaque training pixels and the fused one misses fewer, or when the
-    level set's decimated core is tangled (over :data:`TANGLED_FOLDED_FRACTION` of its adjacent faces folded)
-    and the fused one is less so without missing more than that share of pixels."""
+    (``simplified(fusion)``) when the level set is perforated (misses more than :data:`LEVEL_SET_MAX_MISSED` of
+    the opaque training pixels) and the fused one misses fewer, or when it is tangled (over
+    :data:`TANGLED_FOLDED_FRACTION` of its core's adjacent faces folded) and the fused one is less so without
+    missing more than that share of pixels."""
     missed = missed_opaque_fraction(surface.mesh, cameras, opacities, threshold=0.5, inset=HOLE_INSET_PX)
     folded = core_folded_fraction(surface.mesh)
     surface.mesh.stats.update(level_set_missed=missed, level_set_folded=folded)
