@@ -107,6 +107,11 @@ class TextureConfig:
     ``left_out``. A fixed side overrides it."""
     max_resolution: int = 2048
     """Upper limit of the automatic atlas side."""
+    page_size: int = 4096
+    """Largest side of one atlas page (texture). An atlas side above it is unwrapped into several pages of this
+    side at the same texels per unit (``geometry.unwrap(page_size=)``), played as a texture array of as many
+    layers and exported to glTF as one material per page (docs/architecture.md "Atlas pages"). 4096 is what
+    every WebGL2 browser and GPU holds; at or below it nothing changes."""
     view_weighted_texels: bool = False
     """Size each UV chart by the texel density its faces want (training pixels per unit area in the view that
     sees them largest) instead of by its 3D area, charts cut into tiles of 1/48 of the scene first
@@ -256,6 +261,7 @@ class DistillConfig:
         require(t.resolution == 0 or 16 <= t.resolution <= 8192,
                 f"texture resolution must be 0 (automatic) or in 16..8192, got {t.resolution}")
         require(64 <= t.max_resolution <= 8192, f"max texture resolution must be in 64..8192, got {t.max_resolution}")
+        require(64 <= t.page_size <= 16384, f"texture.page_size must be in 64..16384 texels, got {t.page_size}")
         require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
         require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
         _require_choice(t.view_dependence, Mode, "view_dependence")

@@ -58,6 +58,15 @@ def small_bundle(tmp_path, kind="single", name="b"):
 
         b = bake(make_model(h=6, w=8, k=8, mesh_layers=2), two_spheres(), (0.1, 0.2, 0.3), origin=ORIGIN)
         b.plain_rgb = np.random.default_rng(1).integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    elif kind == "paged":              # an atlas in 2 pages of 8 x 8: a quad on each page
+        from test_atlas_pages import paged_model
+
+        v = np.float32([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+        uv = np.float32([[0, 0], [1, 0], [1, 1], [0, 1]]) * 0.8 + 0.1
+        mesh = MeshData(np.concatenate([v, v + [1.2, 0, 0]]), np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]),
+                        np.concatenate([uv * [1, 0.5], uv * [1, 0.5] + [0, 0.5]]).astype(np.float32))
+        b = bake(paged_model(pages=2, side=8), mesh, (0.1, 0.2, 0.3), origin=ORIGIN)
+        b.plain_rgb = np.random.default_rng(3).integers(0, 256, (16, 8, 3), dtype=np.uint8)
     else:
         from neuras_distill.neural.skybox import SkyboxLayers
         from test_skybox import _tiny_mesh_model, _trained_like
@@ -114,7 +123,7 @@ def test_stored_plain_texture_is_the_model_rounded_with_padded_gutters(tmp_path)
 
 
 # ------------------------------------------------------------------------------------------ the GLB
-@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox"])
+@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox", "paged"])
 def test_the_khronos_validator_finds_no_errors(tmp_path, kind):
     if not Path(NODE).exists():
         pytest.skip("no node to run the glTF validator")
@@ -131,7 +140,7 @@ def test_the_khronos_validator_finds_no_errors(tmp_path, kind):
     assert report["info"]["resources"][1]["image"]["format"] == "rgb"
 
 
-@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox"])
+@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox", "paged"])
 def test_load_bundle_restores_every_file_byte_for_byte(tmp_path, kind):
     folder = small_bundle(tmp_path, kind)
     glb = export_gltf(folder, tmp_path / "scene.glb")
@@ -151,13 +160,13 @@ def test_load_bundle_restores_every_file_byte_for_byte(tmp_path, kind):
 
 @needs_gl
 @pytest.mark.gl
-@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox"])
+@pytest.mark.parametrize("kind", ["single", "two-layer", "skybox", "paged"])
 def test_the_glb_plays_like_the_folder(tmp_path, kind):
     from neuras_distill.playback.renderer import BundleRenderer
 
     folder = small_bundle(tmp_path, kind)
     glb = export_gltf(folder, tmp_path / "scene.glb")
-    centre = ORIGIN + ([0.5, 0.5, 0.0] if kind == "single" else 0.0)
+    centre = ORIGIN + ([0.5, 0.5, 0.0] if kind == "single" else [1.1, 0.5, 0.0] if kind == "paged" else 0.0)
     cams = Cameras.orbit(centre, 2.0, 2, width=48, height=40, elevation_deg=55.0, phase_deg=20.0)
     images = []
     for path in (folder, glb):
@@ -187,6 +196,34 @@ def test_trimesh_opens_it_in_world_units_with_the_texture(tmp_path, kind):
                                atol=1e-6)                                     # trimesh flips v to GL's
     image = np.asarray(geom.visual.material.baseColorTexture.convert("RGB"))
     assert np.array_equal(image, bundle.plain_rgb)
+
+
+def test_an_atlas_in_pages_is_one_material_per_page(tmp_path):
+    """Each page's faces are their own primitive with their own material and image (that page of the plain
+    texture), and TEXCOORD_0 is the uv within the page."""
+    trimesh = pytest.importorskip("trimesh")
+    folder = small_bundle(tmp_path, "paged")
+    bundle = load_bundle(folder)
+    doc, body = _glb_json(export_gltf(folder, tmp_path / "scene.glb"))
+    primitives = doc["meshes"][0]["primitives"]
+    assert len(doc["materials"]) == len(doc["images"]) == len(doc["textures"]) == len(primitives) == 2
+    uv_view = doc["bufferViews"][doc["accessors"][primitives[0]["attributes"]["TEXCOORD_0"]]["bufferView"]]
+    uvs = np.frombuffer(body[uv_view["byteOffset"]:uv_view["byteOffset"] + uv_view["byteLength"]], np.float32)
+    np.testing.assert_allclose(uvs.reshape(-1, 2), np.c_[bundle.mesh.uvs[:, 0], (bundle.mesh.uvs[:, 1] * 2) % 1.0],
+                               atol=1e-6)
+    for page, primitive in enumerate(primitives):
+        assert primitive["material"] == page
+        index_view = doc["bufferViews"][doc["accessors"][primitive["indices"]]["bufferView"]]
+        faces = np.frombuffer(body[index_view["byteOffset"]:index_view["byteOffset"] + index_view["byteLength"]],
+                              np.uint16).reshape(-1, 3)
+        assert np.array_equal(faces, bundle.mesh.faces[2 * page:2 * page + 2])
+        image = doc["images"][doc["textures"][doc["materials"][page]["pbrMetallicRoughness"]["baseColorTexture"]
+                                             ["index"]]["source"]]
+        view = doc["bufferViews"][image["bufferView"]]
+        png = Image.open(io.BytesIO(body[view["byteOffset"]:view["byteOffset"] + view["byteLength"]]))
+        assert np.array_equal(np.asarray(png), bundle.plain_rgb[8 * page:8 * page + 8])
+    scene = trimesh.load(tmp_path / "scene.glb", process=False)
+    assert len(scene.geometry) == 2
 
 
 def test_the_base_colour_is_the_stored_plain_texture(tmp_path):

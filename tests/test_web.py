@@ -35,7 +35,7 @@ import torch
 from PIL import Image
 
 from neuras_distill.bake.bundle import bake, load_bundle
-from neuras_distill.bake.glsl import GLSL_ES_GATHER, GLSL_ES_PRECISION, to_glsl_es
+from neuras_distill.bake.glsl import GLSL_ES_GATHER, GLSL_ES_GATHER_ARRAY, GLSL_ES_PRECISION, to_glsl_es
 from neuras_distill.bake.web import DATA_SCRIPT, MARKER, PLAYER_FILES, export_web
 from neuras_distill.cli import main
 from neuras_distill.errors import BadInputError
@@ -63,6 +63,13 @@ def _run_folder(root: Path, kind: str) -> tuple[Path, Cameras | None]:
         mesh = MeshData(mesh.vertices, mesh.faces, mesh.uvs * 0.8 + 0.1)
         b = bake(model, mesh, (0.1, 0.2, 0.3), origin=ORIGIN,
                  extra_manifest={"silhouette_blend": True, "cull_back_faces": True})
+    elif kind == "paged":               # an atlas in 3 pages: the index map a texture array
+        from test_atlas_pages import paged_model
+
+        mesh = quad_mesh()
+        b = bake(paged_model(pages=3, side=8), MeshData(mesh.vertices, mesh.faces, mesh.uvs * 0.96 + 0.02),
+                 (0.1, 0.2, 0.3), origin=ORIGIN)
+        assert b.manifest["atlas_pages"] == 3
     elif kind == "two-layer":
         from test_two_layer import make_model as layered_model, two_spheres
 
@@ -91,7 +98,7 @@ def _run_folder(root: Path, kind: str) -> tuple[Path, Cameras | None]:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("runs")
-    return {kind: _run_folder(root, kind) for kind in ("single", "two-layer", "skybox")}
+    return {kind: _run_folder(root, kind) for kind in ("single", "two-layer", "skybox", "paged")}
 
 
 # ------------------------------------------------------------------------------------------ the dialect
@@ -110,16 +117,20 @@ def _desktop_sources(runs) -> list[str]:
 
 def test_the_es_dialect_differs_only_by_the_documented_rewrite(runs):
     sources = _desktop_sources(runs)
-    assert sum("textureGather(" in s for s in sources) == 4          # the three mesh shaders and the sky's
+    assert sum("textureGather(" in s for s in sources) == 5          # the four mesh shaders and the sky's
     for src in sources:
         es = to_glsl_es(src)
         assert to_glsl_es(src) == es                                   # deterministic
         lines = es.split("\n")
         assert lines[0] == "#version 300 es" and tuple(lines[1:5]) == GLSL_ES_PRECISION
-        rest = "\n".join(lines[5:])
+        arrays = "usampler2DArray" in src                              # an atlas in pages
+        if arrays:
+            assert lines[5] == "precision highp usampler2DArray;"
+        rest = "\n".join(lines[5 + arrays:])
+        gather = GLSL_ES_GATHER_ARRAY if arrays else GLSL_ES_GATHER
         if "textureGather(" in src:
-            assert rest.startswith(GLSL_ES_GATHER + "\n") and "textureGather(" not in es
-            rest = rest[len(GLSL_ES_GATHER) + 1:].replace("neurasGather(", "textureGather(")
+            assert rest.startswith(gather + "\n") and "textureGather(" not in es
+            rest = rest[len(gather) + 1:].replace("neurasGather(", "textureGather(")
         else:
             assert "neurasGather" not in es
         assert rest == src.split("\n", 1)[1]                           # undoing the rewrite gives the source back
@@ -293,7 +304,7 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @needs_gl
-@pytest.mark.parametrize("kind, camera", [("single", 0), ("two-layer", 1), ("skybox", 1)])
+@pytest.mark.parametrize("kind, camera", [("single", 0), ("two-layer", 1), ("skybox", 1), ("paged", 0)])
 def test_browser_plays_the_held_out_camera_like_the_desktop_player(runs, browser, server, kind, camera):
     from neuras_distill.playback.renderer import BundleRenderer
 

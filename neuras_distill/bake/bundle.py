@@ -8,7 +8,9 @@ Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature
                          ``shaders``: 2 when the fragment shader holds one MLP per layer (picked by ``u_layer``)
     mesh.npz             float32 vertices (V,3), float32 uvs (V,2), int32 faces (F,3)
     feature_index.png    16-bit grayscale PNG of the (H, W) code indices (row 0 = v = 0, i.e. the image
-                         looks upside down in a viewer), lossless
+                         looks upside down in a viewer), lossless; an atlas in ``atlas_pages`` P > 1 pages
+                         (format version 4) stacks them: H = P * W, page p is rows p*W .. (p+1)*W - 1,
+                         played as a texture array of P layers
     codebook.npy         float32 (K, ceil(D/4), 4), zero padded
     shader.frag          the generated fragment shader
     shader.vert          only when the bundle carries a vertex shader (``playback.shaders.VERTEX_SHADER``: a
@@ -55,11 +57,20 @@ from neuras_distill.geometry.mesh import MeshData
 FORMAT = "neuras-bundle"
 FORMAT_VERSION = 2
 TWO_LAYER_FORMAT_VERSION = 3            # written only for a two-layer mesh (manifest ``core_faces`` not null)
-READABLE_VERSIONS = (1, 2, 3)
+PAGES_FORMAT_VERSION = 4                # written only for an atlas in pages (manifest ``atlas_pages`` > 1)
+READABLE_VERSIONS = (1, 2, 3, 4)
+#: Textures that hold the atlas's pages stacked along their rows, played as a texture array of
+#: ``atlas_pages`` layers when there are several (the index map; a plain bundle's RGB texture).
+PAGED_TEXTURES = ("u_index", "u_rgb")
 MAX_CODES = 65535
 FILES = ("manifest.json", "mesh.npz", "feature_index.png", "codebook.npy", "shader.frag")
 SKY_FILES = ("sky_index.png", "sky_codebook.npy", "sky.frag")
 PLAIN_FILE = "plain_rgb.png"
+
+
+def atlas_pages(manifest: dict | None) -> int:
+    """The atlas's page count a bundle manifest records (``atlas_pages``; 1 when absent: one texture)."""
+    return int((manifest or {}).get("atlas_pages") or 1)
 
 
 def float16_feature_nbytes(height: int, width: int, dim: int) -> int:
@@ -178,8 +189,9 @@ class Bundle:
             files[PLAIN_FILE] = buf.getvalue()
         core_faces = _core_faces(m.core_faces, m.num_faces, "the mesh")
         manifest = dict(self.manifest)
-        manifest.update(format=FORMAT, format_version=FORMAT_VERSION if core_faces is None else TWO_LAYER_FORMAT_VERSION,
-                        core_faces=core_faces,
+        version = (PAGES_FORMAT_VERSION if atlas_pages(self.manifest) > 1 else
+                   FORMAT_VERSION if core_faces is None else TWO_LAYER_FORMAT_VERSION)
+        manifest.update(format=FORMAT, format_version=version, core_faces=core_faces,
                         background_color=[float(x) for x in self.background_color],
                         files={k: {"bytes": len(v), "sha256": hashlib.sha256(v).hexdigest()} for k, v in files.items()})
         files["manifest.json"] = json.dumps(manifest, indent=2, sort_keys=True).encode("utf-8")
@@ -301,6 +313,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
     sky_shader = None
     manifest = {
         "texture_width": int(model.tex_width), "texture_height": int(model.tex_height),
+        "atlas_pages": int(getattr(model, "pages", 1)),
         "feature_dim": int(dim), "num_codes": int(k), "num_codes_trained": int(model.num_codes),
         "use_vq": bool(model.use_vq), "use_viewdir": bool(model.use_viewdir),
         "use_facing": bool(model.use_facing),
@@ -409,6 +422,10 @@ def _load_files(d: Path, read, exists) -> Bundle:
     h, w = manifest.get("texture_height"), manifest.get("texture_width")
     if index.shape != (h, w):
         raise BadInputError(f"bundle {d}: feature_index.png is {index.shape}, manifest says {(h, w)}")
+    pages = manifest.get("atlas_pages", 1)
+    if isinstance(pages, bool) or not isinstance(pages, int) or pages < 1 or (pages > 1 and h != pages * w):
+        raise BadInputError(f"bundle {d}: manifest.json says atlas_pages {pages!r}; expected an integer >= 1, "
+                            f"with texture_height = atlas_pages x texture_width when above 1")
     num_codes, per_row = manifest.get("num_codes"), manifest.get("codes_per_row", 1)
     rows = -(-int(num_codes) // int(per_row)) if isinstance(num_codes, int) and isinstance(per_row, int) \
         and per_row >= 1 else None

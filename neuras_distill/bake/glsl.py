@@ -77,12 +77,24 @@ def dense_lines(out: list[str], w: np.ndarray, b: np.ndarray, in_names: list[str
 
 
 def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, index: str, codebook: str, c4: int,
-                           prefix: str, indent: str, codes_per_row: int = 1) -> list[str]:
+                           prefix: str, indent: str, codes_per_row: int = 1, pages: int = 1) -> list[str]:
     """Append the GLSL of a bilinear feature lookup at ``uv`` (``texture.bilinear_corners`` arithmetic: corners
     clamped by CLAMP_TO_EDGE, blended c00, c10, c01, c11) and return the names of the ``c4`` vec4 results
-    ``<prefix>_<c>``. Shared by the mesh shader and the skybox shader."""
+    ``<prefix>_<c>``. Shared by the mesh shader and the skybox shader. With ``pages`` P > 1, ``index`` is a
+    ``usampler2DArray`` of P layers of ``tex_w`` x ``tex_h`` (one page each) and ``uv``'s v is stacked
+    (``texture.bilinear_corners(pages=)``): the layer is ``min(floor(v P), P - 1)``, the v within it the rest."""
+    if pages > 1:
+        out += [
+            f"{indent}float vp = {uv}.y * {pages}.0;",
+            f"{indent}float layer = clamp(floor(vp), 0.0, {pages - 1}.0);",
+            f"{indent}vec2 xy = vec2({uv}.x, vp - layer) * vec2({tex_w}.0, {tex_h}.0) - 0.5;",
+        ]
+    else:
+        out.append(f"{indent}vec2 xy = {uv} * vec2({tex_w}.0, {tex_h}.0) - 0.5;")
+    gather_at = f"(b0 + 1.0) / vec2({tex_w}.0, {tex_h}.0)"
+    if pages > 1:
+        gather_at = f"vec3({gather_at}, layer)"
     out += [
-        f"{indent}vec2 xy = {uv} * vec2({tex_w}.0, {tex_h}.0) - 0.5;",
         f"{indent}vec2 b0 = floor(xy);",
         f"{indent}vec2 f = xy - b0;",
         f"{indent}vec2 g = 1.0 - f;",
@@ -92,7 +104,7 @@ def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, inde
         f"{indent}float w11 = f.x * f.y;",
         # One gather at the exact centre of the 2x2 cell (unambiguous footprint); CLAMP_TO_EDGE does the
         # border clamping. Components: x (i0, j1), y (i1, j1), z (i1, j0), w (i0, j0).
-        f"{indent}uvec4 k = textureGather({index}, (b0 + 1.0) / vec2({tex_w}.0, {tex_h}.0));",
+        f"{indent}uvec4 k = textureGather({index}, {gather_at});",
         f"{indent}int k00 = int(k.w);",
         f"{indent}int k10 = int(k.z);",
         f"{indent}int k01 = int(k.x);",
@@ -139,11 +151,13 @@ def _mlp_lines(out: list[str], shader, in_names: list[str], dim: int, c4: int, v
 def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
     """GLSL #version 400 core fragment shader for a trained ``NeuralTextureModel`` (see module docstring).
 
-    The texture size is baked in as constants (``TEX_W``, ``TEX_H``); the codebook size is not (it comes
+    The texture size is baked in as constants (``TEX_W``, ``TEX_H``; with ``model.pages`` P > 1 those of one
+    page, ``u_index`` then a ``usampler2DArray`` of P layers); the codebook size is not (it comes
     with the ``u_codebook`` texture), but its layout is: ``codes_per_row`` codes per texture row
     (``bundle.wrap_codebook``; more than 1 only for codebooks taller than the largest texture side).
     """
-    tex_w, tex_h, dim = int(model.tex_width), int(model.tex_height), int(model.feature_dim)
+    pages = int(getattr(model, "pages", 1))
+    tex_w, tex_h, dim = int(model.tex_width), int(model.tex_height) // pages, int(model.feature_dim)
     c4 = (dim + 3) // 4
     use_dir = any(bool(s.use_viewdir) for s in model.shaders)
     use_facing = bool(model.use_facing)
@@ -151,7 +165,8 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
 
     out: list[str] = [
         "#version 400 core",
-        f"// NeuRas neural texture shader: {tex_w}x{tex_h} atlas, D={dim}, MLP "
+        "// NeuRas neural texture shader: " + (f"{pages} pages of " if pages > 1 else "")
+        + f"{tex_w}x{tex_h} atlas, D={dim}, MLP "
         + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3" + (", view-dependent" if use_dir else "")
         + (", facing" if use_facing else "")
         + (f", one MLP per mesh layer (the shell's {model.shaders[-1].hidden} wide)" if model.mesh_layers == 2 else ""),
@@ -165,14 +180,14 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
         out += ["#ifndef MESH_LAYER", f"#define MESH_LAYER {CORE_VARIANT}  // the shell's program: shader_variant(source, 1)",
                 "#endif"]
     out += [
-        "uniform usampler2D u_index;",
+        "uniform usampler2DArray u_index;" if pages > 1 else "uniform usampler2D u_index;",
         "uniform sampler2D u_codebook;",
         "out vec4 f_color;",
         "",
         "void main() {",
     ]
     in_names = bilinear_feature_lines(out, "v_uv", tex_w, tex_h, "u_index", "u_codebook", c4, "a0", "    ",
-                                      codes_per_row)
+                                      codes_per_row, pages)
     if use_facing:
         out += ["    vec3 dir = normalize(v_world - u_cam_pos);",
                 "    vec3 nrm = normalize(v_normal);",
@@ -218,6 +233,18 @@ GLSL_ES_GATHER = """uvec4 neurasGather(usampler2D s, vec2 p) {  // textureGather
                  texelFetch(s, ivec2(hi.x, lo.y), 0).r, texelFetch(s, lo, 0).r);
 }"""
 
+#: The same for a texture array (atlas pages): :func:`to_glsl_es` adds it, and the array sampler's precision,
+#: when the source declares a ``usampler2DArray``. ``p.z`` is the layer (integer-valued).
+GLSL_ES_GATHER_ARRAY = """uvec4 neurasGather(usampler2DArray s, vec3 p) {  // the same on one layer of an array
+    ivec2 size = textureSize(s, 0).xy;
+    int layer = int(p.z);
+    ivec2 i0 = ivec2(floor(p.xy * vec2(size) - 0.5));
+    ivec2 lo = clamp(i0, ivec2(0), size - 1);
+    ivec2 hi = clamp(i0 + 1, ivec2(0), size - 1);
+    return uvec4(texelFetch(s, ivec3(lo.x, hi.y, layer), 0).r, texelFetch(s, ivec3(hi, layer), 0).r,
+                 texelFetch(s, ivec3(hi.x, lo.y, layer), 0).r, texelFetch(s, ivec3(lo, layer), 0).r);
+}"""
+
 
 def to_glsl_es(source: str) -> str:
     """The desktop GLSL ``source`` (any shader this package generates or ships: ``#version 330`` / ``400 core``)
@@ -225,7 +252,9 @@ def to_glsl_es(source: str) -> str:
 
     1. the ``#version`` line becomes ``#version 300 es`` followed by :data:`GLSL_ES_PRECISION`;
     2. where the source calls ``textureGather(``, the calls become ``neurasGather(`` and :data:`GLSL_ES_GATHER`
-       follows the precision lines (the only desktop function the generated shaders use that ES 3.00 lacks).
+       follows the precision lines (the only desktop function the generated shaders use that ES 3.00 lacks);
+       a source with a ``usampler2DArray`` (atlas pages) gets that sampler's precision line and
+       :data:`GLSL_ES_GATHER_ARRAY` instead.
 
     Everything else is kept byte for byte (tests/test_web.py undoes the rewrite and compares). Deterministic;
     raises ValueError when the first line is not a ``#version`` directive.
@@ -234,7 +263,10 @@ def to_glsl_es(source: str) -> str:
     if not first.startswith("#version"):
         raise ValueError(f"a GLSL source must start with its #version line, got {first[:40]!r}")
     head = ["#version 300 es", *GLSL_ES_PRECISION]
+    arrays = "usampler2DArray" in rest
+    if arrays:
+        head.append("precision highp usampler2DArray;")
     if "textureGather(" in rest:
         rest = rest.replace("textureGather(", "neurasGather(")
-        head.append(GLSL_ES_GATHER)
+        head.append(GLSL_ES_GATHER_ARRAY if arrays else GLSL_ES_GATHER)
     return "\n".join(head) + sep + rest

@@ -6,7 +6,7 @@ no glTF library), so this module is the only one that knows the layout.
 
 Layout (one buffer, the GLB's binary chunk; every buffer view starts on a 4-byte boundary)::
 
-    scenes[0] -> nodes[0] -> meshes[0]: one triangle primitive, no node transform
+    scenes[0] -> nodes[0] -> meshes[0]: one triangle primitive (one per atlas page), no node transform
         POSITION    float32 (V, 3), world units: the bundle's vertices (relative to ``bundle.origin``) plus the
                     origin, summed in float64 and rounded once to float32; the world frame's axes as they are
                     (no Y-up conversion: the bundle's frame is the field's)
@@ -16,6 +16,10 @@ Layout (one buffer, the GLB's binary chunk; every buffer view starts on a 4-byte
     materials[0]: KHR_materials_unlit, baseColorTexture = the bundle's plain_rgb.png (8-bit RGB, values as
         displayed, i.e. sRGB-encoded base colour as glTF expects), sampler LINEAR / LINEAR_MIPMAP_LINEAR,
         CLAMP_TO_EDGE; doubleSided unless the manifest says ``cull_back_faces``
+    an atlas in pages (``manifest.atlas_pages`` P > 1): one primitive, material, texture and image per page
+        with faces (primitive p's indices are the faces on page p, its material p's image page p of
+        plain_rgb.png as its own PNG); TEXCOORD_0 is then the uv within the vertex's page
+        (``v_page = v * P - page``; no chart crosses a page), shared by all primitives
     extensions.NEURAS_bundle = {"version": 1, "files": {file name: buffer view index}}: every file of the bundle
         folder (manifest.json and every file it lists with its sha256), byte for byte; plain_rgb.png's view is
         the image's own (stored once). Listed in ``extensionsUsed``, not ``extensionsRequired``: an engine that
@@ -97,22 +101,51 @@ def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
     if PLAIN_FILE not in files:
         raise BadInputError("the bundle has no plain RGB texture (plain_rgb.png; bundles baked by older versions "
                             "lack it): re-run the distillation to export it as glTF")
+    from .bundle import atlas_pages
+
     positions, uvs, faces = _glb_mesh(bundle)
+    pages = atlas_pages(bundle.manifest)
+    face_page = np.zeros(len(faces), np.int64)
+    if pages > 1:                      # each vertex lies on one page: its uv within that page's own texture
+        vertex_page = np.clip(np.floor(uvs[:, 1].astype(np.float64) * pages), 0, pages - 1).astype(np.int64)
+        uvs = np.stack([uvs[:, 0], uvs[:, 1].astype(np.float64) * pages - vertex_page], axis=1).astype(np.float32)
+        face_page = vertex_page[faces[:, 0]]
     binary = _Binary()
     small = len(positions) < 65535                        # 65535 is uint16's primitive-restart value
     index_type, index_dtype = (_UNSIGNED_SHORT, np.uint16) if small else (_UNSIGNED_INT, np.uint32)
-    indices = binary.add(faces.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER, "indices")
     position = binary.add(positions.tobytes(), _ARRAY_BUFFER, "POSITION")
     texcoord = binary.add(uvs.tobytes(), _ARRAY_BUFFER, "TEXCOORD_0")
-    file_views = {}
-    for name in ("manifest.json", *sorted(n for n in files if n != "manifest.json")):
-        file_views[name] = binary.add(files[name], None, name)
     accessors = [
-        {"bufferView": indices, "componentType": index_type, "count": int(faces.size), "type": "SCALAR"},
         {"bufferView": position, "componentType": _FLOAT, "count": len(positions), "type": "VEC3",
          "min": [float(x) for x in positions.min(0)], "max": [float(x) for x in positions.max(0)]},
         {"bufferView": texcoord, "componentType": _FLOAT, "count": len(uvs), "type": "VEC2"},
     ]
+    primitives = []
+    for page in range(pages):                             # one primitive and material per page with faces
+        page_faces = faces[face_page == page]
+        if not len(page_faces):
+            continue
+        view = binary.add(page_faces.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER,
+                          "indices" if pages == 1 else f"indices page {page}")
+        accessors.append({"bufferView": view, "componentType": index_type, "count": int(page_faces.size),
+                          "type": "SCALAR"})
+        primitives.append({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": len(accessors) - 1,
+                           "material": page, "mode": 4})
+    file_views = {}
+    for name in ("manifest.json", *sorted(n for n in files if n != "manifest.json")):
+        file_views[name] = binary.add(files[name], None, name)
+    if pages == 1:
+        images = [{"name": PLAIN_FILE, "bufferView": file_views[PLAIN_FILE], "mimeType": "image/png"}]
+    else:                              # the stacked plain texture cut into its pages, one PNG each
+        side = bundle.plain_rgb.shape[1]
+        images = [{"name": f"plain_rgb page {page}", "mimeType": "image/png",
+                   "bufferView": binary.add(_png(bundle.plain_rgb[page * side:(page + 1) * side]), None,
+                                            f"plain_rgb page {page}")} for page in range(pages)]
+    materials = [{"name": "plain texture (unlit)" + (f", page {page}" if pages > 1 else ""),
+                  "pbrMetallicRoughness": {"baseColorTexture": {"index": page}, "metallicFactor": 0.0,
+                                           "roughnessFactor": 1.0},
+                  "doubleSided": not bool(bundle.manifest.get("cull_back_faces", False)),
+                  "extensions": {"KHR_materials_unlit": {}}} for page in range(pages)]
     doc = {
         "asset": {"version": "2.0", "generator": f"{GENERATOR} {__version__}"},
         "extensionsUsed": ["KHR_materials_unlit", EXTENSION],
@@ -121,17 +154,12 @@ def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
         "scenes": [{"name": "neuras bundle", "nodes": [0]}],
         "nodes": [{"name": "neuras bundle", "mesh": 0}],
         "meshes": [{"name": "bundle mesh" + (" (core)" if bundle.mesh.core_faces else ""),
-                    "primitives": [{"attributes": {"POSITION": 1, "TEXCOORD_0": 2}, "indices": 0, "material": 0,
-                                    "mode": 4}]}],
-        "materials": [{"name": "plain texture (unlit)",
-                       "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0,
-                                                "roughnessFactor": 1.0},
-                       "doubleSided": not bool(bundle.manifest.get("cull_back_faces", False)),
-                       "extensions": {"KHR_materials_unlit": {}}}],
-        "textures": [{"sampler": 0, "source": 0}],
+                    "primitives": primitives}],
+        "materials": materials,
+        "textures": [{"sampler": 0, "source": page} for page in range(pages)],
         "samplers": [{"magFilter": _LINEAR, "minFilter": _LINEAR_MIPMAP_LINEAR, "wrapS": _CLAMP_TO_EDGE,
                       "wrapT": _CLAMP_TO_EDGE}],
-        "images": [{"name": PLAIN_FILE, "bufferView": file_views[PLAIN_FILE], "mimeType": "image/png"}],
+        "images": images,
         "accessors": accessors,
         "bufferViews": binary.views,
         "buffers": [{"byteLength": binary.size}],
@@ -142,6 +170,17 @@ def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
     total = 12 + 8 + len(text) + 8 + len(body)
     return b"".join([struct.pack("<III", _MAGIC, 2, total), struct.pack("<II", len(text), _JSON), text,
                      struct.pack("<II", len(body), _BIN), body])
+
+
+def _png(rgb: np.ndarray) -> bytes:
+    """8-bit RGB PNG bytes of (H, W, 3) uint8 ``rgb``."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb), mode="RGB").save(buf, format="PNG")
+    return buf.getvalue()
 
 
 def _parse_glb(path: Path, data: bytes) -> tuple[dict, bytes]:

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from .bundle import Bundle
+from .bundle import Bundle, atlas_pages
 
 
 def _nearest_texel(uv: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -115,27 +115,38 @@ def plain_texture_rgb8(model, mesh, uv, coverage, view_inputs) -> np.ndarray:
     return np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
 
 
-def plain_fragment_shader(width: int, height: int) -> str:
+def plain_fragment_shader(width: int, height: int, pages: int = 1) -> str:
     """GLSL 330 fragment shader playing an RGB float texture ``u_rgb`` (H x W x 3, texelFetch only) with the
-    bilinear-corner arithmetic of ``neural.texture.bilinear_corners``."""
+    bilinear-corner arithmetic of ``neural.texture.bilinear_corners``; with ``pages`` P > 1 (H = P * W) a
+    ``sampler2DArray`` of P layers of W x W, v stacked as there."""
+    if pages > 1:
+        side = height // pages
+        lookup = [f"    float vp = v_uv.y * {pages}.0;",
+                  f"    float layer = clamp(floor(vp), 0.0, {pages - 1}.0);",
+                  f"    vec2 xy = vec2(v_uv.x, vp - layer) * vec2({width}.0, {side}.0) - 0.5;"]
+        sampler, height, fetch = "sampler2DArray", side, "texelFetch(u_rgb, ivec3({}, int(layer)), 0).rgb"
+    else:
+        lookup = [f"    vec2 xy = v_uv * vec2({width}.0, {height}.0) - 0.5;"]
+        sampler, fetch = "sampler2D", "texelFetch(u_rgb, {}, 0).rgb"
     return "\n".join([
         "#version 330 core",
-        f"// plain RGB texture, {width}x{height}, bilinear (the baseline of the neural shader)",
+        "// plain RGB texture, " + (f"{pages} pages of " if pages > 1 else "")
+        + f"{width}x{height}, bilinear (the baseline of the neural shader)",
         "in vec2 v_uv;",
-        "uniform sampler2D u_rgb;",
+        f"uniform {sampler} u_rgb;",
         "out vec4 f_color;",
         "void main() {",
-        f"    vec2 xy = v_uv * vec2({width}.0, {height}.0) - 0.5;",
+        *lookup,
         "    vec2 b0 = floor(xy);",
         "    vec2 f = xy - b0;",
         "    vec2 g = 1.0 - f;",
         f"    ivec2 hi = ivec2({width - 1}, {height - 1});",
         "    ivec2 c0 = clamp(ivec2(b0), ivec2(0), hi);",
         "    ivec2 c1 = clamp(ivec2(b0) + 1, ivec2(0), hi);",
-        "    vec3 rgb = g.x * g.y * texelFetch(u_rgb, c0, 0).rgb"
-        " + f.x * g.y * texelFetch(u_rgb, ivec2(c1.x, c0.y), 0).rgb"
-        " + g.x * f.y * texelFetch(u_rgb, ivec2(c0.x, c1.y), 0).rgb"
-        " + f.x * f.y * texelFetch(u_rgb, c1, 0).rgb;",
+        f"    vec3 rgb = g.x * g.y * {fetch.format('c0')}"
+        f" + f.x * g.y * {fetch.format('ivec2(c1.x, c0.y)')}"
+        f" + g.x * f.y * {fetch.format('ivec2(c0.x, c1.y)')}"
+        f" + f.x * f.y * {fetch.format('c1')};",
         "    f_color = vec4(rgb, 1.0);",
         "}",
         "",
@@ -146,9 +157,11 @@ def plain_bundle(bundle: Bundle, rgb: np.ndarray) -> Bundle:
     """A bundle with ``bundle``'s mesh, background and origin that plays the plain texture ``rgb`` (H, W, 3)
     (no skybox pass: the sky is not a texture on the mesh)."""
     h, w = rgb.shape[:2]
-    manifest = {k: v for k, v in bundle.manifest.items() if k in ("origin", "cull_back_faces", "core_faces", "silhouette_blend")}
+    manifest = {k: v for k, v in bundle.manifest.items()
+                if k in ("origin", "cull_back_faces", "core_faces", "silhouette_blend", "atlas_pages")}
     return Bundle(mesh=bundle.mesh, textures={"u_rgb": np.ascontiguousarray(rgb, np.float32)},
-                  fragment_shader=plain_fragment_shader(w, h), background_color=bundle.background_color,
+                  fragment_shader=plain_fragment_shader(w, h, atlas_pages(manifest)),
+                  background_color=bundle.background_color,
                   manifest=manifest, vertex_shader=bundle.vertex_shader)
 
 

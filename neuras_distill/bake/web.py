@@ -51,6 +51,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import BadInputError
+from .bundle import PAGED_TEXTURES, atlas_pages
 
 MARKER = ".neuras-distill-web"
 PLAYER_FILES = ("index.html", "player.js")
@@ -95,6 +96,7 @@ def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
     files["mesh.bin"] = np.ascontiguousarray(vbo, dtype="<f4").tobytes()
     files["faces.bin"] = np.ascontiguousarray(mesh.faces, dtype="<u4").tobytes()
     textures = []
+    pages = atlas_pages(manifest)
     for name, arr in sorted(bundle.textures.items()):
         arr = np.ascontiguousarray(arr)
         if arr.dtype not in (np.uint16, np.float32) or arr.ndim not in (2, 3) or \
@@ -105,7 +107,8 @@ def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
         files[file] = arr.astype(arr.dtype.newbyteorder("<"), copy=False).tobytes()
         textures.append({"name": name, "file": file, "width": int(arr.shape[1]), "height": int(arr.shape[0]),
                          "components": 1 if arr.ndim == 2 else int(arr.shape[2]),
-                         "type": "uint16" if arr.dtype == np.uint16 else "float32"})
+                         "type": "uint16" if arr.dtype == np.uint16 else "float32",
+                         **({"layers": pages} if pages > 1 and name in PAGED_TEXTURES else {})})
     layers = [[float(layer), int(first), int(count)] for layer, first, count in mesh_layers(mesh)]
     programs = {}
     for layer in sorted({max(0, int(layer)) for layer, _, _ in layers} or {0}):

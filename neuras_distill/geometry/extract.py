@@ -254,12 +254,15 @@ def _level_set_or_fused_depths(surface: Surface, simplified, fusion, cameras, op
 
 
 def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float = 120.0,
-                   max_unwrap_faces: int = MAX_UNWRAP_FACES, face_weights: np.ndarray | None = None) -> MeshData:
+                   max_unwrap_faces: int = MAX_UNWRAP_FACES, face_weights: np.ndarray | None = None,
+                   page_size: int | None = None) -> MeshData:
     """``surface.mesh`` unwrapped for a ``resolution`` x ``resolution`` atlas (``surface.trial`` when that is
-    its side and no ``face_weights`` are given: (F,) texel densities the faces want, ``unwrap``), with the
-    surface's stats and ``faces_final``, ``vertices_final``, ``chart_count``, ``seconds_unwrap``."""
+    its side and no ``face_weights`` are given: (F,) texel densities the faces want, ``unwrap``; in pages of
+    ``page_size`` when ``resolution`` is larger), with the surface's stats and ``faces_final``,
+    ``vertices_final``, ``chart_count``, ``seconds_unwrap``."""
+    paged = page_size is not None and int(resolution) > int(page_size)
     if (surface.trial is not surface.mesh and int(resolution) == int(surface.trial_resolution)
-            and face_weights is None):
+            and face_weights is None and not paged):
         return surface.trial
     t = time.perf_counter()
     if face_weights is None and surface.trial is not surface.mesh and surface.trial.uvs is not None:
@@ -269,11 +272,12 @@ def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float
         layout = None if surface.layout is None else np.asarray(surface.layout)[source]
         mesh = unwrap(MeshData(trial.vertices, trial.faces, None, {}, core_faces=trial.core_faces),
                       timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces, resolution=int(resolution),
-                      layout_vertices=layout, charts=trial.uvs)
+                      layout_vertices=layout, charts=trial.uvs, page_size=page_size)
         mesh.stats["uv_charts_from_trial"] = True
     else:
         mesh = unwrap(surface.mesh, timeout_s=unwrap_timeout_s, max_faces=max_unwrap_faces,
-                      resolution=int(resolution), layout_vertices=surface.layout, face_weights=face_weights)
+                      resolution=int(resolution), layout_vertices=surface.layout, face_weights=face_weights,
+                      page_size=page_size)
     stats = {k: v for k, v in surface.mesh.stats.items() if not k.startswith("uv_")}
     mesh.stats = {**stats, **mesh.stats}
     mesh.stats.update(faces_final=mesh.num_faces, vertices_final=mesh.num_vertices, chart_count=mesh.stats.get("uv_charts"),

@@ -61,12 +61,12 @@ def _xatlas_worker(conn, vertices: np.ndarray, faces: np.ndarray, options: dict)
         time.sleep(3600)
     import xatlas
 
-    def generate(resolution: int, padding: int):
+    def generate(resolution: int, padding: int, texels_per_unit: float = 0.0):
         atlas = xatlas.Atlas()
         atlas.add_mesh(vertices, faces)
         chart = xatlas.ChartOptions()
         chart.max_iterations = int(options["max_iterations"])
-        atlas.generate(chart, _pack_options(resolution, padding))
+        atlas.generate(chart, _pack_options(resolution, padding, texels_per_unit))
         return atlas
 
     padding = int(options["padding"])
@@ -87,22 +87,33 @@ def _xatlas_worker(conn, vertices: np.ndarray, faces: np.ndarray, options: dict)
         atlas = generate(resolution, padding)
         if atlas.atlas_count != 1:
             atlas = generate(0, padding)
+    page_size = int(options.get("page_size") or 0)
+    vertex_page = None
+    if page_size and resolution > page_size:
+        # the same texels per unit as one atlas at ``resolution``, packed into pages of page_size
+        texels_per_unit = float(atlas.texels_per_unit) * resolution / max(atlas.width, atlas.height)
+        padding = max(padding, int(math.ceil(options["min_padding"])))
+        atlas = generate(page_size, padding, texels_per_unit)
+        vertex_page = np.asarray(atlas.get_mesh_vertex_assignment(0)[0], dtype=np.int64)
     vmapping, indices, uvs = atlas[0]
     if weights is not None:    # pass 2's vertices are pass 1's: map back to the input mesh's
         vmapping = pass1_vmapping[np.asarray(vmapping, dtype=np.int64)]
     conn.send({"vmapping": np.asarray(vmapping, dtype=np.int64), "indices": np.asarray(indices, dtype=np.int64),
                "uvs": np.asarray(uvs, dtype=np.float32), "chart_count": int(atlas.chart_count),
                "width": int(atlas.width), "height": int(atlas.height), "atlas_count": int(atlas.atlas_count),
-               "utilization": float(np.mean(atlas.utilization)), "padding": padding})
+               "utilization": float(np.mean(atlas.utilization)), "padding": padding, "vertex_page": vertex_page})
     conn.close()
 
 
-def _pack_options(resolution: int, padding: int):
-    """xatlas packing at about ``resolution`` texels with ``padding`` texels between charts, bilinear-safe."""
+def _pack_options(resolution: int, padding: int, texels_per_unit: float = 0.0):
+    """xatlas packing at about ``resolution`` texels with ``padding`` texels between charts, bilinear-safe;
+    with ``texels_per_unit`` (> 0) the charts keep that scale and fill as many atlases of exactly
+    ``resolution`` as they need (atlas pages)."""
     import xatlas
 
     pack = xatlas.PackOptions()
     pack.resolution = int(resolution)
+    pack.texels_per_unit = float(texels_per_unit)
     pack.padding = int(padding)
     pack.bilinear = True
     pack.blockAlign = True
@@ -146,12 +157,12 @@ def _packer(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray):
     their layout positions give."""
     import xatlas
 
-    def generate(resolution: int, padding: int):
+    def generate(resolution: int, padding: int, texels_per_unit: float = 0.0):
         atlas = xatlas.Atlas()
         atlas.add_mesh(vertices, faces, None, uvs)
         chart = xatlas.ChartOptions()
         chart.use_input_mesh_uvs = True
-        atlas.generate(chart, _pack_options(resolution, padding))
+        atlas.generate(chart, _pack_options(resolution, padding, texels_per_unit))
         return atlas
 
     return generate
@@ -239,8 +250,8 @@ def normalized_layout(positions: np.ndarray) -> np.ndarray:
 def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNWRAP_FACES, resolution: int | None = None,
            padding: int = 3, min_padding: float = 2.0, max_iterations: int = 1,
            layout_vertices: np.ndarray | None = None, face_weights: np.ndarray | None = None,
-           charts: np.ndarray | None = None) -> MeshData:
-    """UV-unwrap ``mesh`` into one square atlas.
+           charts: np.ndarray | None = None, page_size: int | None = None) -> MeshData:
+    """UV-unwrap ``mesh`` into one square atlas, or into pages when ``resolution`` exceeds ``page_size``.
 
     Args:
         mesh: vertices (V, 3), faces (F, 3) (cleaned and decimated).
@@ -261,11 +272,16 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNW
             seams, so each vertex lies in one chart; any atlas side): its charts are packed again at
             ``resolution`` instead of being computed anew. Computing the charts is nearly all of xatlas's time
             (the demo's 30k faces: 5.2 s; packing them again: 0.06-0.16 s).
+        page_size: largest side of one atlas page (None: no limit). When ``resolution`` exceeds it, the charts
+            keep the scale of a one-atlas packing at ``resolution`` and are packed into as many square pages of
+            ``page_size`` as they need; the pages are stacked along v: a vertex on page p of P has
+            ``v = (p + v_page) / P`` (:func:`atlas_shape`; no chart crosses a page).
 
     Returns:
         MeshData with vertices (V', 3) split along seams (V' >= V), faces (F, 3) in the same order, uvs (V', 2)
         float32 in [0, 1], and stats ``uv_charts``, ``uv_atlas_width``, ``uv_atlas_height``,
-        ``uv_utilization``, ``uv_resolution``, ``uv_padding_texels``, ``uv_attempts``, ``uv_seconds``.
+        ``uv_utilization``, ``uv_resolution``, ``uv_padding_texels``, ``uv_attempts``, ``uv_seconds``,
+        ``uv_pages`` and ``uv_page_size`` (1 and ``resolution`` for one atlas).
 
     Raises:
         BadInputError: empty mesh, too many faces, or xatlas crashed/timed out twice.
@@ -290,7 +306,9 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNW
     vertices = normalized_layout(layout)
     faces = np.ascontiguousarray(mesh.faces, dtype=np.uint32)
     options = {"resolution": resolution, "padding": int(padding), "min_padding": float(min_padding),
-               "max_iterations": int(max_iterations)}
+               "max_iterations": int(max_iterations), "page_size": int(page_size or 0)}
+    if page_size is not None and int(page_size) < 16:
+        raise BadInputError(f"an atlas page must be at least 16 texels on a side, got {page_size}")
     if face_weights is not None:
         weights = np.asarray(face_weights, dtype=np.float64).reshape(-1)
         if weights.shape[0] != n_faces or not np.isfinite(weights).all() or (weights <= 0).any():
@@ -323,16 +341,32 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNW
     vmapping, indices, uv = result["vmapping"], result["indices"], result["uvs"].astype(np.float64)
     if tile_map is not None:
         vmapping = tile_map[vmapping]
-    scale = 1.0 / max(result["width"], result["height"])
-    uv = uv * np.array([result["width"], result["height"]], dtype=np.float64) * scale
+    pages, page_side = 1, resolution
+    if result.get("vertex_page") is not None:          # pages of exactly page_size, stacked along v
+        pages, page_side = int(result["atlas_count"]), int(page_size)
+        uv = np.clip(uv, 0.0, 1.0)
+        uv[:, 1] = (result["vertex_page"] + uv[:, 1]) / pages
+        padding_texels, utilization = float(result["padding"]), float(result["utilization"])
+    else:
+        scale = 1.0 / max(result["width"], result["height"])
+        uv = uv * np.array([result["width"], result["height"]], dtype=np.float64) * scale
+        padding_texels = result["padding"] * resolution * scale
+        utilization = result["utilization"] * result["width"] * result["height"] * scale * scale
     uv = np.clip(uv, 0.0, 1.0).astype(np.float32)
     stats = dict(mesh.stats)
     stats.update(uv_charts=result["chart_count"], uv_atlas_width=result["width"], uv_atlas_height=result["height"],
-                 uv_utilization=result["utilization"] * result["width"] * result["height"] * scale * scale,
-                 uv_resolution=resolution, uv_padding_texels=result["padding"] * resolution * scale,
+                 uv_utilization=utilization, uv_resolution=resolution, uv_padding_texels=padding_texels,
                  uv_attempts=attempts, uv_seconds=time.perf_counter() - t0,
-                 uv_view_weighted=face_weights is not None)
+                 uv_view_weighted=face_weights is not None, uv_pages=pages, uv_page_size=page_side)
     return MeshData(mesh.vertices[vmapping], indices, uv, stats, core_faces=mesh.core_faces)
 
 
-__all__ = ["unwrap", "uv_face_areas", "UnwrapFailed", "CRASH_HOOK_ENV", "MAX_UNWRAP_FACES"]
+def atlas_shape(stats: dict) -> tuple[int, int, int]:
+    """(height, width, pages) of the feature atlas an unwrapped mesh's ``stats`` describe: one square atlas of
+    ``uv_resolution``, or ``uv_pages`` pages of ``uv_page_size`` stacked along v (height = pages * side)."""
+    pages = int(stats.get("uv_pages") or 1)
+    side = int(stats["uv_page_size"]) if pages > 1 else int(stats["uv_resolution"])
+    return pages * side, side, pages
+
+
+__all__ = ["unwrap", "uv_face_areas", "atlas_shape", "UnwrapFailed", "CRASH_HOOK_ENV", "MAX_UNWRAP_FACES"]

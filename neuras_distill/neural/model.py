@@ -78,15 +78,23 @@ class NeuralTextureModel(nn.Module):
             shader takes it (the direction columns of ``dirs`` are there either way).
         shell_hidden: with ``mesh_layers=2``, the hidden width of the shell's shader (None or 0: ``hidden``).
             Its fragments are only those outside the core's silhouette, so a wider shell costs little.
+        pages: P atlas pages of ``tex_width`` squared texels stacked along v (``tex_height = P * tex_width``;
+            ``geometry.unwrap(page_size=)``): the bilinear lookup stays within a uv's page
+            (``texture.bilinear_corners``), as the baked shader's texture-array lookup does.
     """
 
     def __init__(self, tex_height: int, tex_width: int, feature_dim: int = _TEXTURE.feature_dim,
                  num_codes: int = _TEXTURE.num_codes, hidden: int = _TEXTURE.hidden,
                  num_layers: int = _TEXTURE.num_layers, use_viewdir: bool = True, use_vq: bool = _TEXTURE.quantize,
                  sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False,
-                 mesh_layers: int = 1, core_viewdir: bool | None = None, shell_hidden: int | None = None) -> None:
+                 mesh_layers: int = 1, core_viewdir: bool | None = None, shell_hidden: int | None = None,
+                 pages: int = 1) -> None:
         super().__init__()
         self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
+        self.pages = int(pages)
+        if self.pages < 1 or (self.pages > 1 and self.tex_height != self.pages * self.tex_width):
+            raise ValueError(f"{self.pages} atlas pages need tex_height = pages * tex_width, got "
+                             f"{self.tex_height} x {self.tex_width}")
         self.hidden, self.num_layers = int(hidden), int(num_layers)
         self.use_viewdir, self.use_vq, self.sparse_grad = bool(use_viewdir), bool(use_vq), bool(sparse_grad)
         self.texture = NeuralTexture(self.tex_height, self.tex_width, self.feature_dim)
@@ -152,7 +160,7 @@ class NeuralTextureModel(nn.Module):
     # ------------------------------------------------------------------ forward
     def features(self, uv: torch.Tensor) -> tuple[torch.Tensor, dict]:
         """Blended (quantized) features at uv (B, 2) -> (B, D) float32, aux (vq_loss, indices (B, 4) or None)."""
-        idx, w = bilinear_corners(uv, self.tex_height, self.tex_width)
+        idx, w = bilinear_corners(uv, self.tex_height, self.tex_width, self.pages)
         if self.record_touched and self.training:
             with torch.no_grad():
                 self.touched[idx[w > 0]] = True

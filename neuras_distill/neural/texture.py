@@ -8,6 +8,11 @@ Owns: :class:`NeuralTexture` (a (H, W, D) parameter, row j = v index, column i =
     weights (1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy
 
 ``bake/glsl.py`` emits exactly the same arithmetic (same order of operations, float32).
+
+Atlas pages (``pages`` P > 1, docs/architecture.md "Atlas pages"): the atlas is P square pages of side S stacked
+along v (H = P * S); a uv's page is ``p = min(floor(v * P), P - 1)`` and its row within the page
+``y = (v * P - p) * S - 0.5``, the corner rows clamped to the page's own rows, as a texture array's layer is
+addressed in GLSL (each page its own layer, CLAMP_TO_EDGE within it).
 """
 
 from __future__ import annotations
@@ -23,12 +28,13 @@ from torch import nn
 warnings.filterwarnings("ignore", message="Sparse invariant checks are implicitly disabled")
 
 
-def bilinear_corners(uv: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
+def bilinear_corners(uv: torch.Tensor, height: int, width: int, pages: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
     """Corner texels and weights of a bilinear lookup.
 
     Args:
         uv: (B, 2) float texture coordinates (u right, v up; [0, 1] covers the texture).
         height, width: texture size H (rows, v) and W (columns, u).
+        pages: P square pages stacked along v (H = P * W); the corners are clamped within the uv's page.
 
     Returns:
         idx: (B, 4) int64 flat texel indices ``j * W + i`` of the corners (i0,j0), (i0+1,j0), (i0,j0+1),
@@ -37,7 +43,15 @@ def bilinear_corners(uv: torch.Tensor, height: int, width: int) -> tuple[torch.T
     """
     uv = uv.to(torch.float32)
     x = uv[:, 0] * float(width) - 0.5
-    y = uv[:, 1] * float(height) - 0.5
+    rows, first_row = height, 0
+    if pages > 1:
+        rows = height // pages
+        vp = uv[:, 1] * float(pages)
+        page = torch.clamp(torch.floor(vp), 0.0, float(pages - 1))
+        y = (vp - page) * float(rows) - 0.5
+        first_row = page.long() * rows
+    else:
+        y = uv[:, 1] * float(height) - 0.5
     x0 = torch.floor(x)
     y0 = torch.floor(y)
     fx = x - x0
@@ -45,9 +59,9 @@ def bilinear_corners(uv: torch.Tensor, height: int, width: int) -> tuple[torch.T
     i0 = x0.long()
     j0 = y0.long()
     i1 = (i0 + 1).clamp_(0, width - 1)
-    j1 = (j0 + 1).clamp_(0, height - 1)
+    j1 = (j0 + 1).clamp_(0, rows - 1) + first_row
     i0 = i0.clamp_(0, width - 1)
-    j0 = j0.clamp_(0, height - 1)
+    j0 = j0.clamp_(0, rows - 1) + first_row
     idx = torch.stack([j0 * width + i0, j0 * width + i1, j1 * width + i0, j1 * width + i1], dim=1)
     gx = 1.0 - fx
     gy = 1.0 - fy

@@ -15,6 +15,12 @@ from .evaluate import crop_strip, side_by_side
 CROP_NAMES = {"a": "silhouette band", "b": "interior"}
 
 
+
+def _pages(rep: dict) -> str:
+    """"P pages of " for an atlas in pages (``atlas_pages``; reports before it have none)."""
+    pages = int(rep.get("atlas_pages") or 1)
+    return f"{pages} pages of " if pages > 1 else ""
+
 def _mb(n) -> str:
     return "-" if n is None else f"{n / 1e6:.2f} MB"
 
@@ -74,7 +80,8 @@ def summary_table(rep: dict) -> str:
         ("OpenGL vs torch parity", "-", f"{rep['parity_psnr']:.1f} dB"),
         *_plain_rows(rep),
         ("faces", "-", f"{rep['mesh_faces']}"),
-        ("texture", "-", f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
+        ("texture", "-", _pages(rep) + f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}"
+                         f"x{rep['feature_dim']}, "
                          f"{rep['codebook_size']} codes"),
         ("bundle size", "-", _mb(rep.get("bundle_bytes")) + ratio),
         *([("peak memory (run)", f"{rep['peak_rss_mb']:.0f} MB resident"
@@ -136,7 +143,8 @@ def summary_rows(rep: dict) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
             f"{plain['psnr']:.2f} dB, FLIP {plain['flip']:.4f}, {plain['frame_time_ms']:.2f} ms per frame")]
           if plain else []),
         ("faces", "", f"{rep['mesh_faces']}"),
-        ("texture", "", f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}x{rep['feature_dim']}, "
+        ("texture", "", _pages(rep) + f"{rep['texture_resolution'][0]}x{rep['texture_resolution'][1]}"
+                         f"x{rep['feature_dim']}, "
                         f"{rep['codebook_size']} codes"),
         ("bundle", "", _mb(rep.get("bundle_bytes"))),
     ]

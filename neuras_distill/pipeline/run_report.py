@@ -11,6 +11,7 @@ import torch
 
 from .. import __version__
 from ..bake.bundle import Bundle
+from ..geometry.unwrap import atlas_shape
 from .stage_results import (Backdrop, CameraSplit, DistilledModel, Evaluation, GeometryResult, ShaderInputs,
                             TrainingPlan, TrainingViews)
 from .stages.context import RunContext
@@ -45,7 +46,7 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
     field_seconds = ev.field_views.seconds
     fps_before = 1.0 / float(np.median(field_seconds))
     fps_after = float(ev.timing["fps"])
-    tex_res = int(mesh.stats["uv_resolution"])
+    _, tex_res, pages = atlas_shape(mesh.stats)
     skybox = distilled.skybox
     log = distilled.log
     return {
@@ -69,7 +70,8 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "stage_seconds": ctx.clock.seconds,
         "mesh_faces": mesh.num_faces,
         "mesh_stats": {k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))},
-        "texture_resolution": [tex_res, tex_res],
+        "texture_resolution": [tex_res, tex_res],           # of one page
+        "atlas_pages": pages,
         "feature_dim": cfg.texture.feature_dim,
         "codebook_size": int(bundle.manifest.get("num_codes", cfg.texture.num_codes)),
         "bundle_bytes": int(bundle.nbytes_on_disk()),

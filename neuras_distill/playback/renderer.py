@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from ..errors import BadInputError
+from ..bake.bundle import PAGED_TEXTURES, atlas_pages
 from .context import get_context, moderngl_module, software_gl
 from .projection import gl_matrix, mesh_bounds, near_far_for, projection_matrix, screen_box, view_matrix
 from .rasterize import _check_mesh, draw_mesh, mesh_layers, mesh_vertex_array, set_raster_state
@@ -143,13 +144,23 @@ class BundleRenderer:
             self.depth_vao, bufs = mesh_vertex_array(self.ctx, self.depth_program, mesh)
             self._resources += [self.depth_vao, *bufs, self.depth_program]
         max_size = int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 0) or 0)
+        max_layers = int(self.ctx.info.get("GL_MAX_ARRAY_TEXTURE_LAYERS", 0) or 0)
+        pages = atlas_pages(manifest)
         for unit, (name, arr) in enumerate(sorted(bundle.textures.items())):
             arr = np.ascontiguousarray(arr)
             comps, dtype = _texture_layout(name, arr)
             h, w = arr.shape[:2]
-            if max_size and max(h, w) > max_size:
-                raise BadInputError(f"bundle texture {name!r} is {w}x{h}; this GL allows at most {max_size} per side")
-            tex = self.ctx.texture((w, h), comps, arr.tobytes(), dtype=dtype, alignment=1)
+            if pages > 1 and name in PAGED_TEXTURES:        # the atlas's pages as the layers of a texture array
+                if (max_size and w > max_size) or (max_layers and pages > max_layers):
+                    raise BadInputError(f"the bundle's atlas has {pages} pages of {w}x{w} texels; this GL holds "
+                                        f"at most {max_size}x{max_size} per page and {max_layers} pages: bake it "
+                                        f"again with texture.page_size {min(w, max_size)} or less")
+                tex = self.ctx.texture_array((w, h // pages, pages), comps, arr.tobytes(), dtype=dtype, alignment=1)
+            else:
+                if max_size and max(h, w) > max_size:
+                    raise BadInputError(f"bundle texture {name!r} is {w}x{h}; this GL allows at most {max_size} "
+                                        "per side")
+                tex = self.ctx.texture((w, h), comps, arr.tobytes(), dtype=dtype, alignment=1)
             tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
             tex.repeat_x = tex.repeat_y = False
             self._resources.append(tex)

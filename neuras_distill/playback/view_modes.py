@@ -58,6 +58,21 @@ void main() {
 """
 
 
+def index_fragment_shader(pages: int = 1) -> str:
+    """:data:`INDEX_FRAGMENT_SHADER`, or for an atlas in ``pages`` P > 1 (``u_index`` a texture array, v stacked
+    as in ``neural.texture.bilinear_corners``) the same on the uv's page."""
+    if pages <= 1:
+        return INDEX_FRAGMENT_SHADER
+    return (INDEX_FRAGMENT_SHADER
+            .replace("uniform usampler2D u_index;", "uniform usampler2DArray u_index;")
+            .replace("    ivec2 size = textureSize(u_index, 0);\n",
+                     "    ivec2 size = textureSize(u_index, 0).xy;\n"
+                     f"    float vp = v_uv.y * {pages}.0;\n"
+                     f"    float layer = clamp(floor(vp), 0.0, {pages - 1}.0);\n")
+            .replace("floor(v_uv * vec2(size))", "floor(vec2(v_uv.x, vp - layer) * vec2(size))")
+            .replace("texelFetch(u_index, texel, 0)", "texelFetch(u_index, ivec3(texel, int(layer)), 0)"))
+
+
 def mode_bundle(bundle, mode: str):
     """The ``Bundle`` that plays ``mode`` (a :data:`VIEW_MODES` key) of ``bundle``; BadInputError for an
     unknown mode or ``plain`` on a bundle without a plain texture."""
@@ -78,8 +93,10 @@ def mode_bundle(bundle, mode: str):
         manifest = dict(plain.manifest, skybox=bundle.manifest["skybox"])
         return replace(plain, textures={**plain.textures, **sky_textures}, manifest=manifest,
                        sky_fragment_shader=bundle.sky_fragment_shader)
-    shader = UV_FRAGMENT_SHADER if mode == "uv" else INDEX_FRAGMENT_SHADER
+    from ..bake.bundle import atlas_pages  # noqa: PLC0415
+
+    shader = UV_FRAGMENT_SHADER if mode == "uv" else index_fragment_shader(atlas_pages(bundle.manifest))
     return replace(bundle, fragment_shader=shader)
 
 
-__all__ = ["VIEW_MODES", "mode_bundle", "UV_FRAGMENT_SHADER", "INDEX_FRAGMENT_SHADER"]
+__all__ = ["VIEW_MODES", "mode_bundle", "UV_FRAGMENT_SHADER", "INDEX_FRAGMENT_SHADER", "index_fragment_shader"]

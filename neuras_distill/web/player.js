@@ -204,18 +204,31 @@
       throw new Error(`${desc.file} holds ${array.length} values, expected ${desc.width * desc.height * comps}`);
     }
     const max = gl.getParameter(gl.MAX_TEXTURE_SIZE);
-    if (Math.max(desc.width, desc.height) > max) {
-      throw new Error(`texture ${desc.name} is ${desc.width}x${desc.height}; this browser allows at most ${max} per side`);
-    }
+    const layers = desc.layers || 1;         // an atlas in pages: a texture array, pages stacked along the rows
     const t = gl.createTexture();
-    gl.bindTexture(gl.TEXTURE_2D, t);
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
-    gl.texImage2D(gl.TEXTURE_2D, 0, internal, desc.width, desc.height, 0, format, type, array);
-    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
-    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
-    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
-    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
-    return t;
+    let target = gl.TEXTURE_2D;
+    if (layers > 1) {
+      const maxLayers = gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS);
+      if (desc.width > max || layers > maxLayers) {
+        throw new Error(`the atlas has ${layers} pages of ${desc.width}x${desc.width} texels; this browser holds at most ` +
+                        `${max}x${max} per page and ${maxLayers} pages: bake it again with texture.page_size ${Math.min(desc.width, max)} or less`);
+      }
+      target = gl.TEXTURE_2D_ARRAY;
+      gl.bindTexture(target, t);
+      gl.texImage3D(target, 0, internal, desc.width, desc.height / layers, layers, 0, format, type, array);
+    } else {
+      if (Math.max(desc.width, desc.height) > max) {
+        throw new Error(`texture ${desc.name} is ${desc.width}x${desc.height}; this browser allows at most ${max} per side`);
+      }
+      gl.bindTexture(target, t);
+      gl.texImage2D(target, 0, internal, desc.width, desc.height, 0, format, type, array);
+    }
+    gl.texParameteri(target, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(target, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    gl.texParameteri(target, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+    gl.texParameteri(target, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+    return { tex: t, target };
   }
 
   // ------------------------------------------------------------------ the player
@@ -249,7 +262,7 @@
 
     // --- textures: unit = position in name order (as BundleRenderer binds them)
     const buffers = await Promise.all([scene.mesh.vbo, scene.mesh.ibo, ...scene.textures.map((t) => t.file)].map(getBytes));
-    const textures = scene.textures.map((desc, unit) => ({ unit, name: desc.name, tex: texture(gl, desc, buffers[2 + unit]) }));
+    const textures = scene.textures.map((desc, unit) => ({ unit, name: desc.name, ...texture(gl, desc, buffers[2 + unit]) }));
     const sceneUnit = textures.length;          // the silhouette pass reads the scene colour here
     for (const prog of [...Object.values(programs), sky]) {
       if (!prog) continue;
@@ -326,7 +339,7 @@
       gl.clearColor(bg[0], bg[1], bg[2], 0.0);     // alpha 0: no mesh (the mesh shaders write 1)
       gl.clearDepth(1.0);
       gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
-      for (const t of textures) { gl.activeTexture(gl.TEXTURE0 + t.unit); gl.bindTexture(gl.TEXTURE_2D, t.tex); }
+      for (const t of textures) { gl.activeTexture(gl.TEXTURE0 + t.unit); gl.bindTexture(t.target, t.tex); }
       gl.disable(gl.CULL_FACE); gl.disable(gl.BLEND);          // rasterize.set_raster_state
       gl.enable(gl.DEPTH_TEST);
       gl.depthFunc(gl.LESS);

@@ -3,6 +3,7 @@ renders, resuming from the last training checkpoint of a killed run."""
 
 from __future__ import annotations
 
+from ...geometry.unwrap import atlas_shape
 from ...neural.model import NeuralTextureModel
 from ...neural.train import fit
 from ...neural.train_checkpoint import TrainCheckpoint
@@ -16,18 +17,20 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
                   inputs: ShaderInputs, backdrop: Backdrop) -> DistilledModel:
     """The trained model and skybox (stored as ``distill``; training checkpoints under ``work/checkpoints``)."""
     cfg, t = ctx.cfg, ctx.cfg.texture
-    tex_res = int(training.mesh.stats["uv_resolution"])
-    ctx.clock.start("distill", f"{tex_res}^2 x {t.feature_dim} feature atlas, "
+    height, side, pages = atlas_shape(training.mesh.stats)
+    ctx.clock.start("distill", (f"{pages} pages of " if pages > 1 else "")
+                    + f"{side}^2 x {t.feature_dim} feature atlas, "
                                + (f"{t.num_codes} codes, " if t.quantize else "no VQ, ")
                                + f"MLP {t.num_layers}x{t.hidden}{'' if inputs.use_viewdir else ' (no view input)'}"
                                + (f" (shell {t.shell_hidden or t.hidden})" if len(training.mesh.layers()) == 2 else "")
                                + ", "
                                f"{plan.steps} steps" + (f" (at most {plan.time_budget_s:.0f} s)"
                                                         if plan.time_budget_s else ""))
-    model = NeuralTextureModel(tex_res, tex_res, feature_dim=t.feature_dim, num_codes=t.num_codes,
+    model = NeuralTextureModel(height, side, feature_dim=t.feature_dim, num_codes=t.num_codes,
                                hidden=t.hidden, num_layers=t.num_layers, use_viewdir=inputs.use_viewdir,
                                use_facing=inputs.use_facing, mesh_layers=len(training.mesh.layers()),
-                               core_viewdir=inputs.core_viewdir, shell_hidden=t.shell_hidden, use_vq=t.quantize)
+                               core_viewdir=inputs.core_viewdir, shell_hidden=t.shell_hidden, use_vq=t.quantize,
+                               pages=pages)
     skybox = backdrop.skybox
     key = digest("distill", ctx.keys["gbuffer"], ctx.keys["plan"], plan.steps, plan.time_budget_s,
                  settings(cfg.texture), settings(cfg.train, ("checkpoint_every_s",)), settings(cfg.skybox),

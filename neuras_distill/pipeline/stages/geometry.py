@@ -8,6 +8,7 @@ import numpy as np
 
 from ...errors import require
 from ...geometry.extract import SHELL_TEXEL_SCALE, Surface, extract_surface, unwrap_surface
+from ...geometry.unwrap import atlas_shape
 from .. import choices, decisions
 from ..cache import digest
 from ..stage_results import CameraSplit, GeometryResult, ShaderInputs, TeacherResult, TrainingPlan
@@ -28,24 +29,30 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     side, density = choose_atlas_side(ctx, surface, views, plan) if auto_side else (ctx.cfg.texture.resolution, {})
     weighted = ctx.cfg.texture.view_weighted_texels and surface.layout is None
     weights = decisions.view_texel_weights(surface.mesh, views.train) if weighted else None
+    page_size = ctx.cfg.texture.page_size
+    paged = page_size < max(side, ctx.cfg.texture.max_resolution if auto_side else side)
     key = digest("geometry", ctx.keys["surface"], side, decisions.MIN_TEXEL_YIELD if auto_side else None,
-                 *(("view-weighted texels",) if weighted else ()))
+                 *(("view-weighted texels",) if weighted else ()), *(("pages of", page_size) if paged else ()))
+
+    def unwrap_at(at_side: int):
+        return unwrap_surface(surface, at_side, unwrap_timeout_s=g.unwrap_timeout_s, face_weights=weights,
+                              page_size=page_size)
 
     def unwrap_at_side() -> GeometryResult:
-        mesh = unwrap_surface(surface, side, unwrap_timeout_s=g.unwrap_timeout_s, face_weights=weights)
+        mesh = unwrap_at(side)
         if not auto_side:
             return GeometryResult(mesh, density)
         # the side was chosen from the trial unwrap's uv area; many small charts lose more of a small atlas to
         # their padding: unwrap once more at a larger side when too few texels hold surface
         wanted = density["pixels"] / decisions.PIXELS_PER_TEXEL ** 2
-        used = mesh.uv_area() * side ** 2
+        used = used_texels(mesh)
         grown = decisions.side_for_texels(side, used, wanted, hi=min(ctx.cfg.texture.max_resolution,
                                                                      density.get("budget", side)))
         if grown == side:
             return GeometryResult(mesh, density)
-        regrown = unwrap_surface(surface, grown, unwrap_timeout_s=g.unwrap_timeout_s, face_weights=weights)
+        regrown = unwrap_at(grown)
         info = dict(density, chosen=grown, texel_yield=used / wanted, regrown_from=side,
-                    texel_yield_after=regrown.uv_area() * grown ** 2 / wanted)
+                    texel_yield_after=used_texels(regrown) / wanted)
         return GeometryResult(regrown, info)
 
     result = ctx.cached("geometry", key, unwrap_at_side, GeometryResult.save, GeometryResult.load)
@@ -55,6 +62,7 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     require(tex_res >= need, f"a {tex_res}x{tex_res} texture is too small for this mesh: its {charts} UV charts "
                              f"need at least {need}x{need} texels; raise --texture-resolution (or use 0 for "
                              f"automatic) or lower --face-budget")
+    _record_atlas_pages(ctx, mesh.stats)
     if auto_side:
         _record_atlas_side(ctx, tex_res, density)
         if density.get("regrown_from"):
@@ -153,6 +161,21 @@ def _record_surface_source(ctx: RunContext, stats: dict) -> None:
                                 f"training pixels but the fused depths missed more ({fused:.1f}%)", **measured)
 
 
+def used_texels(mesh) -> float:
+    """Texels the unwrapped ``mesh``'s charts cover in its atlas (all its pages)."""
+    height, width, _ = atlas_shape(mesh.stats)
+    return min(1.0, mesh.uv_area()) * height * width
+
+
+def _record_atlas_pages(ctx: RunContext, stats: dict) -> None:
+    """An atlas side above ``texture.page_size``: the pages it was packed into."""
+    height, side, pages = atlas_shape(stats)
+    if pages > 1:
+        ctx.decisions.keep("atlas pages", f"the {stats['uv_resolution']}x{stats['uv_resolution']} atlas is above "
+                           f"texture.page_size ({side}): its charts, at the same texels per unit, fill {pages} "
+                           f"pages of {side}x{side}, played as a texture array", pages=pages, page_size=side)
+
+
 def _record_atlas_side(ctx: RunContext, tex_res: int, density: dict) -> None:
     hi = ctx.cfg.texture.max_resolution
     capped = density["exact"] > hi
@@ -183,7 +206,7 @@ def choose_shader_inputs(ctx: RunContext, mesh, enclose: bool) -> ShaderInputs:
 def fix_steps(ctx: RunContext, plan: TrainingPlan, mesh) -> TrainingPlan:
     """Fix the plan's ``steps``: configured, or enough for ``decisions.TARGET_SAMPLES_PER_TEXEL`` samples per
     used texel of the atlas within ``max_steps``; the choice is recorded as a decision."""
-    used = min(1.0, mesh.uv_area()) * int(mesh.stats["uv_resolution"]) ** 2
+    used = used_texels(mesh)
     steps, needed = decisions.training_steps(used, plan.samples_per_step, plan.max_steps)
     if plan.configured_steps:
         steps = plan.configured_steps
