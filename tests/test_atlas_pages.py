@@ -231,3 +231,4 @@ def test_a_run_with_a_small_page_size_plays_its_atlas_in_pages(small_run, tmp_pa
     assert rep["plain_texture"]["psnr"] >= one["plain_texture"]["psnr"] - 0.5
     print(f"one atlas {one['psnr']:.2f} dB, {rep['atlas_pages']} pages {rep['psnr']:.2f} dB "
           f"(parity {rep['parity_psnr']:.1f} dB)")
+

@@ -34,6 +34,9 @@ def test_report_has_the_contract(small_run):
     assert np.allclose(rep["scene_aabb"], result.report["scene_aabb"]) and np.asarray(rep["scene_aabb"]).shape == (2, 3)
     assert np.all(np.asarray(rep["scene_aabb"])[1] > np.asarray(rep["scene_aabb"])[0])
     assert rep["peak_rss_mb"] > 100 and rep["peak_gpu_mb"] is None and rep["processes"] == 1
+    peaks = list(rep["stage_peak_rss_mb"].values())        # per stage, in run order: never falling
+    assert list(rep["stage_peak_rss_mb"]) == list(rep["stage_seconds"])
+    assert all(a <= b for a, b in zip(peaks, peaks[1:])) and 0 < peaks[-1] <= rep["peak_rss_mb"] + 1
 
 
 def test_the_bundle_carries_its_plain_texture_and_exports_to_gltf(small_run, tmp_path):

@@ -176,3 +176,29 @@ def test_side_by_side_panels_and_flip_colours():
     assert crop.shape == (8, 3 * 10 + 2 * 4, 3)
     np.testing.assert_array_equal(crop[0, 2 * 14], (panel[1, 1] * 255 + 0.5).astype(np.uint8))
     assert crop[0, 2 * 14].min() > 150 and crop[0, 0].max() == 0  # FLIP panel unscaled, field panel black
+
+
+def test_the_texel_footprint_benchmark_reads_gl_level_of_detail():
+    """benchmarks/texel_footprint.py (what a feature pyramid could buy): lambda = log2(texels per pixel along
+    the longer screen axis), from same-face neighbours only."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "texel_footprint.py"
+    spec = importlib.util.spec_from_file_location("texel_footprint", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    h, w = 8, 12
+    yy, xx = np.meshgrid(np.arange(h, dtype=np.float32), np.arange(w, dtype=np.float32), indexing="ij")
+    uv = np.stack([xx / 64.0, yy / 16.0], -1)            # per pixel: 1/64 of u, 1/16 of v
+    face = np.zeros((h, w), np.int64)
+    face[:, 6:] = 1                                      # two faces side by side
+    face[0, 0] = -1                                      # an uncovered pixel
+    lod = bench.level_of_detail(uv, face, height=64, width=256)     # 4 texels per pixel in both directions
+    assert np.isnan(lod[0, 0])
+    finite = np.isfinite(lod)
+    assert finite.sum() >= h * w - 3
+    np.testing.assert_allclose(lod[finite], 2.0, atol=1e-5)
+    uv_across = uv.copy()
+    uv_across[:, 6:, 0] += 0.5                           # a chart seam between the faces: not a uv step
+    np.testing.assert_allclose(bench.level_of_detail(uv_across, face, 64, 256)[finite], 2.0, atol=1e-5)

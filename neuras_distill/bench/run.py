@@ -110,7 +110,8 @@ def rebuild_inputs(report: dict) -> tuple:
 
 def _facts(report: dict) -> RunFacts:
     tex = report["config"]["texture"]
-    return RunFacts(side=int(report["texture_resolution"][0]), steps=int(report["train_summary"]["steps"]),
+    side = (report.get("mesh_stats") or {}).get("uv_resolution") or report["texture_resolution"][0]  # atlas, not page
+    return RunFacts(side=int(side), steps=int(report["train_summary"]["steps"]),
                     face_budget=int(report["config"]["geometry"]["face_budget"]), hidden=int(tex["hidden"]),
                     num_layers=int(tex["num_layers"]),
                     view_input=bool((report.get("view_dependence") or {}).get("used", True)))

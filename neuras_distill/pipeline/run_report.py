@@ -68,6 +68,7 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "evaluate_seconds": {k: round(v, 3) for k, v in ev.part_seconds.items()},
         "distill_seconds": None,
         "stage_seconds": ctx.clock.seconds,
+        "stage_peak_rss_mb": ctx.clock.peak_rss_mb,             # the process's peak when each stage ended
         "mesh_faces": mesh.num_faces,
         "mesh_stats": {k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))},
         "texture_resolution": [tex_res, tex_res],           # of one page

@@ -15,7 +15,7 @@ import torch
 
 from ... import __version__
 from ...config import DistillConfig
-from ...device import on_device
+from ...device import on_device, peak_memory_mb
 from ...fields.base import Field
 from ..cache import StageCache, field_fingerprint
 from ..choices import Background, Decisions
@@ -33,11 +33,15 @@ def seed_stage(seed: int, stage: str) -> None:
 
 
 class StageClock:
-    """Announces, seeds and times the stages; writes each one's manifest into ``<root>/stages/<name>/``."""
+    """Announces, seeds and times the stages; writes each one's manifest into ``<root>/stages/<name>/``.
+
+    ``peak_rss_mb``: the process's peak resident memory (MB) when each stage ended; it never falls, so the stage
+    where it rises is the one that set the run's peak (a stored stage that was reused adds little)."""
 
     def __init__(self, root: Path | None, log: Callable[[str], None], seed: int = 0):
         self.root, self.log, self.seed = root, log, seed
         self.seconds: dict[str, float] = {}
+        self.peak_rss_mb: dict[str, float] = {}
         self._name, self._t0 = "", 0.0
 
     def start(self, name: str, what: str) -> None:
@@ -53,11 +57,13 @@ class StageClock:
     def done(self, **info) -> float:
         seconds = time.perf_counter() - self._t0
         self.seconds[self._name] = round(seconds, 3)
+        self.peak_rss_mb[self._name] = round(peak_memory_mb()["peak_rss_mb"], 1)
         if self.root is not None:
             folder = self.root / "stages" / self._name
             folder.mkdir(parents=True, exist_ok=True)
             (folder / "manifest.json").write_text(json.dumps(
-                {"stage": self._name, "version": __version__, "seconds": seconds, **info}, indent=2, default=str))
+                {"stage": self._name, "version": __version__, "seconds": seconds,
+                 "peak_rss_mb": self.peak_rss_mb[self._name], **info}, indent=2, default=str))
         return seconds
 
 
