@@ -11,8 +11,9 @@ evaluation's resolution, takes ``lambda`` per pixel from the uv differences to t
 face (right or left, below or above; pixels on one-pixel faces are left out), plays the bundle
 (``BundleRenderer``) and reads the field's held-out frames the run stored (``work/field_views``; run with
 ``--keep-work`` or from a run whose work area is still there). Prints per bucket of ``lambda``: the share of the
-mesh's pixels, the share of the whole frames' squared error, and the PSNR there; then the whole frames' PSNR if
-the minified pixels' error were gone (the most a pyramid could give).
+mesh's pixels, the share of the whole frames' squared error, and the PSNR there; the same for the mesh's pixels
+without a lambda (one-pixel faces, a face's last row or column) and for the pixels off the mesh (background,
+skyboxes); then the whole frames' PSNR if the minified pixels' error were gone (the most a pyramid could give).
 
 Usage: python benchmarks/texel_footprint.py RUN_FOLDER [--max-views 8]
 """
@@ -110,6 +111,13 @@ def main() -> None:
                       "psnr": -10.0 * np.log10(mse) if sel.any() and mse > 0 else None}
         print(f"{name:>16}: {100 * share_px:5.1f}% of the mesh's pixels, {100 * share_err:5.1f}% of the squared "
               f"error" + (f", {rows[name]['psnr']:.2f} dB there" if rows[name]["psnr"] is not None else ""))
+    coverage = np.stack([gbuffer.face_id[i] >= 0 for i in range(n)])
+    for name, sel in (("mesh, no lambda", coverage & ~np.isfinite(lod)), ("not on the mesh", ~coverage)):
+        share_err = float(err[sel].sum()) / max(total, 1e-30)
+        psnr = -10.0 * np.log10(float(err[sel].mean()) / 3.0) if sel.any() and err[sel].mean() > 0 else None
+        rows[name] = {"pixels_of_frame": float(sel.mean()), "error": share_err, "psnr": psnr}
+        print(f"{name:>16}: {100 * float(sel.mean()):5.1f}% of the frames' pixels, {100 * share_err:5.1f}% of the "
+              "squared error" + (f", {psnr:.2f} dB there" if psnr is not None else ""))
     mse_all = total / err.size / 3.0
     minified = np.isfinite(lod) & (lod >= 0.0)
     mse_without = (total - float(err[minified].sum())) / err.size / 3.0
