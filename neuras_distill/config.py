@@ -194,7 +194,8 @@ class TrainConfig:
     report's ``training_plan``. Configured steps run to the end unless ``time_budget_s`` is set too."""
     time_budget_s: float = 0.0
     """Stop training after this many seconds. 0 (default): half of the time the run spends volume rendering
-    the field (teacher renders plus held-out evaluation, ``decisions.training_time_budget``)."""
+    the field (teacher renders plus held-out evaluation, ``decisions.training_time_budget``) and extracting the
+    surface (``pipeline.stages.geometry.with_surface_time``)."""
     lr: float = 0.01
     """Adam learning rate (NeuRas uses 0.01)."""
     batch_patches: int = 32

@@ -53,3 +53,27 @@ def test_training_budget_limits_the_atlas():
     assert training_budget_resolution(1 << 20, 0.25, per_texel=64, multiple=1, lo=1) == 256
     assert training_budget_resolution(1 << 22, 1.0, multiple=1, lo=1) == 128           # 256 per texel by default
     assert training_budget_resolution(10, 1.0) == 128
+
+
+def test_the_training_budget_counts_the_surface_extraction():
+    """An automatic plan gets TRAIN_TIME_FRACTION of the surface's stored seconds on top of its share of the
+    volume rendering; configured budgets and steps are left alone."""
+    from types import SimpleNamespace
+
+    import neuras_distill as nd
+    from neuras_distill.pipeline.decisions import TRAIN_TIME_FRACTION
+    from neuras_distill.pipeline.stage_results import TrainingPlan
+    from neuras_distill.pipeline.stages.geometry import with_surface_time
+
+    auto = TrainingPlan(time_budget_s=28.0, samples_per_step=8192, steps_per_second=95.0, configured_steps=None,
+                        max_steps=2660)
+    ctx = SimpleNamespace(cfg=nd.load_config("fast"))
+    grown = with_surface_time(ctx, auto, 28.0)
+    assert grown.time_budget_s == 28.0 + TRAIN_TIME_FRACTION * 28.0
+    assert grown.max_steps == int(grown.time_budget_s * 95.0) > auto.max_steps and auto.time_budget_s == 28.0
+    assert with_surface_time(ctx, auto, None) is auto                  # a surface stored without its timing
+    fixed = TrainingPlan(time_budget_s=None, samples_per_step=8192, steps_per_second=None, configured_steps=500,
+                         max_steps=500)
+    assert with_surface_time(ctx, fixed, 28.0) is fixed
+    budgeted = SimpleNamespace(cfg=nd.load_config("fast", overrides={"train": {"time_budget_s": 30.0}}))
+    assert with_surface_time(budgeted, auto, 28.0) is auto
