@@ -17,7 +17,7 @@ from neuras_distill.geometry.unwrap import atlas_shape, unwrap
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.texture import bilinear_corners
 
-from test_bake import VERT, draw_fullscreen, gl_context, quad_uvs
+from test_bake import VERT, draw_with_features, gl_context, quad_view_dirs
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -95,22 +95,12 @@ def test_the_paged_shader_plays_what_the_torch_model_computes():
         prog = ctx.program(vertex_shader=VERT, fragment_shader=b.fragment_shader)
         prog["u_uv0"].value, prog["u_uv_scale"].value = tuple(uv0), tuple(uv_scale)
         prog["u_cam_pos"].value = tuple(cam)
-        idx, cb = b.textures["u_index"], b.textures["u_codebook"]
+        idx = b.textures["u_index"]
         t_idx = ctx.texture_array((idx.shape[1], idx.shape[0] // 3, 3), 1, data=idx.tobytes(), dtype="u2")
-        t_cb = ctx.texture((cb.shape[1], cb.shape[0]), 4, data=cb.tobytes(), dtype="f4")
-        for t in (t_idx, t_cb):
-            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            t.repeat_x = t.repeat_y = False
-        prog["u_index"].value, prog["u_codebook"].value = 0, 1
-        t_idx.use(0)
-        t_cb.use(1)
-        gl = draw_fullscreen(moderngl, ctx, prog, res)
+        gl = draw_with_features(moderngl, ctx, prog, t_idx, b.textures["u_codebook"], res)
     finally:
         ctx.release()
-    uv, tx, ty = quad_uvs(uv0, uv_scale, res)
-    world = np.stack([2 * tx - 1, np.zeros_like(tx), 2 * ty - 1], -1)
-    d = world - cam
-    dirs = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    uv, dirs, _, _ = quad_view_dirs(uv0, uv_scale, res, cam)
     ref = m.render_gbuffer(uv, np.ones((res, res), bool), dirs, np.zeros(3))
     diff = np.abs(gl - ref)
     assert ref.std() > 0.05

@@ -180,6 +180,27 @@ def quad_uvs(uv0, uv_scale, res: int):
     return np.stack([uv0[0] + tx * uv_scale[0], uv0[1] + ty * uv_scale[1]], -1).astype(np.float32), tx, ty
 
 
+def quad_view_dirs(uv0, uv_scale, res: int, cam) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`quad_uvs` and the unit directions from ``cam`` to :data:`VERT`'s world points at the same pixel
+    centres: ((res, res, 2) uv, (res, res, 3) float32 dirs, t.x, t.y)."""
+    uv, tx, ty = quad_uvs(uv0, uv_scale, res)
+    d = np.stack([2 * tx - 1, np.zeros_like(tx), 2 * ty - 1], -1) - cam
+    return uv, (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32), tx, ty
+
+
+def draw_with_features(moderngl, ctx, prog, t_idx, codebook: np.ndarray, res: int) -> np.ndarray:
+    """Bind ``t_idx`` (the index texture, or texture array) to unit 0 and ``codebook`` (rows, C, 4) float32 to
+    unit 1 as the shader's ``u_index`` / ``u_codebook`` (nearest, clamped), then :func:`draw_fullscreen`."""
+    t_cb = ctx.texture((codebook.shape[1], codebook.shape[0]), 4, data=codebook.tobytes(), dtype="f4")
+    for t in (t_idx, t_cb):
+        t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        t.repeat_x = t.repeat_y = False
+    prog["u_index"].value, prog["u_codebook"].value = 0, 1
+    t_idx.use(0)
+    t_cb.use(1)
+    return draw_fullscreen(moderngl, ctx, prog, res)
+
+
 def draw_fullscreen(moderngl, ctx, prog, res: int) -> np.ndarray:
     """Draw ``prog`` (vertex stage :data:`VERT`) over a res x res float framebuffer: (res, res, 3) float32,
     row r is t.y = (r + 0.5) / res."""
@@ -235,24 +256,12 @@ def test_glsl_parity_with_torch(use_viewdir, dim, use_facing, max_rows, monkeypa
         else:
             assert "u_cam_pos" not in prog
         idx = b.textures["u_index"]
-        cb = b.textures["u_codebook"]
         t_idx = ctx.texture((idx.shape[1], idx.shape[0]), 1, data=idx.tobytes(), dtype="u2")
-        t_cb = ctx.texture((cb.shape[1], cb.shape[0]), 4, data=cb.tobytes(), dtype="f4")
-        for t in (t_idx, t_cb):
-            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            t.repeat_x = t.repeat_y = False
-        prog["u_index"].value = 0
-        prog["u_codebook"].value = 1
-        t_idx.use(0)
-        t_cb.use(1)
-        gl = draw_fullscreen(moderngl, ctx, prog, res)
+        gl = draw_with_features(moderngl, ctx, prog, t_idx, b.textures["u_codebook"], res)
     finally:
         ctx.release()
     # torch reference on the same uv / dirs (row r of the readback is t.y = (r + 0.5) / res)
-    uv, tx, ty = quad_uvs(uv0, uv_scale, res)
-    world = np.stack([2 * tx - 1, np.zeros_like(tx), 2 * ty - 1], -1)
-    d = world - cam
-    dirs = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    uv, dirs, tx, ty = quad_view_dirs(uv0, uv_scale, res, cam)
     if use_facing:              # the shading normal varies over the quad (VERT's v_normal, normalized per pixel)
         n = np.stack([0.3 * (2 * tx - 1), np.ones_like(tx), 0.2 * (2 * ty - 1)], -1)
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
