@@ -184,9 +184,7 @@ class Bundle:
             files["sky_codebook.npy"] = buf.getvalue()
             files["sky.frag"] = self.sky_fragment_shader.encode("utf-8")
         if self.plain_rgb is not None:
-            buf = io.BytesIO()
-            Image.fromarray(self.plain_rgb, mode="RGB").save(buf, format="PNG")
-            files[PLAIN_FILE] = buf.getvalue()
+            files[PLAIN_FILE] = encode_png_rgb(self.plain_rgb)
         core_faces = _core_faces(m.core_faces, m.num_faces, "the mesh")
         manifest = dict(self.manifest)
         version = (PAGES_FORMAT_VERSION if atlas_pages(self.manifest) > 1 else
@@ -230,6 +228,13 @@ def _core_faces(value, num_faces: int, where: str) -> int | None:
             or not 0 <= int(value) <= num_faces:
         raise BadInputError(f"{where}: core_faces must be null or an integer in [0, {num_faces}], got {value!r}")
     return int(value)
+
+
+def encode_png_rgb(rgb: np.ndarray) -> bytes:
+    """8-bit RGB PNG bytes of a uint8 (H, W, 3) array (the plain texture, and its pages in the glTF export)."""
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb), mode="RGB").save(buf, format="PNG")
+    return buf.getvalue()
 
 
 def _encode_png16(index: np.ndarray) -> bytes:

@@ -76,6 +76,14 @@ def dense_lines(out: list[str], w: np.ndarray, b: np.ndarray, in_names: list[str
     return names
 
 
+def page_lines(uv: str, pages: int, indent: str) -> list[str]:
+    """GLSL lines declaring ``vp`` (``uv``'s v times the ``pages`` P) and ``layer`` (its page,
+    ``min(floor(vp), P - 1)``, as a float): the v within the page is ``vp - layer``
+    (``neural.texture.bilinear_corners(pages=)``). Shared by every shader that reads an atlas in pages."""
+    return [f"{indent}float vp = {uv}.y * {pages}.0;",
+            f"{indent}float layer = clamp(floor(vp), 0.0, {pages - 1}.0);"]
+
+
 def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, index: str, codebook: str, c4: int,
                            prefix: str, indent: str, codes_per_row: int = 1, pages: int = 1) -> list[str]:
     """Append the GLSL of a bilinear feature lookup at ``uv`` (``texture.bilinear_corners`` arithmetic: corners
@@ -84,11 +92,8 @@ def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, inde
     ``usampler2DArray`` of P layers of ``tex_w`` x ``tex_h`` (one page each) and ``uv``'s v is stacked
     (``texture.bilinear_corners(pages=)``): the layer is ``min(floor(v P), P - 1)``, the v within it the rest."""
     if pages > 1:
-        out += [
-            f"{indent}float vp = {uv}.y * {pages}.0;",
-            f"{indent}float layer = clamp(floor(vp), 0.0, {pages - 1}.0);",
-            f"{indent}vec2 xy = vec2({uv}.x, vp - layer) * vec2({tex_w}.0, {tex_h}.0) - 0.5;",
-        ]
+        out += [*page_lines(uv, pages, indent),
+                f"{indent}vec2 xy = vec2({uv}.x, vp - layer) * vec2({tex_w}.0, {tex_h}.0) - 0.5;"]
     else:
         out.append(f"{indent}vec2 xy = {uv} * vec2({tex_w}.0, {tex_h}.0) - 0.5;")
     gather_at = f"(b0 + 1.0) / vec2({tex_w}.0, {tex_h}.0)"

@@ -101,7 +101,7 @@ def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
     if PLAIN_FILE not in files:
         raise BadInputError("the bundle has no plain RGB texture (plain_rgb.png; bundles baked by older versions "
                             "lack it): re-run the distillation to export it as glTF")
-    from .bundle import atlas_pages
+    from .bundle import atlas_pages, encode_png_rgb
 
     positions, uvs, faces = _glb_mesh(bundle)
     pages = atlas_pages(bundle.manifest)
@@ -139,7 +139,7 @@ def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
     else:                              # the stacked plain texture cut into its pages, one PNG each
         side = bundle.plain_rgb.shape[1]
         images = [{"name": f"plain_rgb page {page}", "mimeType": "image/png",
-                   "bufferView": binary.add(_png(bundle.plain_rgb[page * side:(page + 1) * side]), None,
+                   "bufferView": binary.add(encode_png_rgb(bundle.plain_rgb[page * side:(page + 1) * side]), None,
                                             f"plain_rgb page {page}")} for page in range(pages)]
     materials = [{"name": "plain texture (unlit)" + (f", page {page}" if pages > 1 else ""),
                   "pbrMetallicRoughness": {"baseColorTexture": {"index": page}, "metallicFactor": 0.0,
@@ -170,17 +170,6 @@ def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
     total = 12 + 8 + len(text) + 8 + len(body)
     return b"".join([struct.pack("<III", _MAGIC, 2, total), struct.pack("<II", len(text), _JSON), text,
                      struct.pack("<II", len(body), _BIN), body])
-
-
-def _png(rgb: np.ndarray) -> bytes:
-    """8-bit RGB PNG bytes of (H, W, 3) uint8 ``rgb``."""
-    import io
-
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(rgb), mode="RGB").save(buf, format="PNG")
-    return buf.getvalue()
 
 
 def _parse_glb(path: Path, data: bytes) -> tuple[dict, bytes]:

@@ -26,6 +26,7 @@ import torch
 from scipy import ndimage
 
 from .bundle import Bundle, atlas_pages
+from .glsl import page_lines
 
 
 def _nearest_texel(uv: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -121,8 +122,7 @@ def plain_fragment_shader(width: int, height: int, pages: int = 1) -> str:
     ``sampler2DArray`` of P layers of W x W, v stacked as there."""
     if pages > 1:
         side = height // pages
-        lookup = [f"    float vp = v_uv.y * {pages}.0;",
-                  f"    float layer = clamp(floor(vp), 0.0, {pages - 1}.0);",
+        lookup = [*page_lines("v_uv", pages, "    "),
                   f"    vec2 xy = vec2(v_uv.x, vp - layer) * vec2({width}.0, {side}.0) - 0.5;"]
         sampler, height, fetch = "sampler2DArray", side, "texelFetch(u_rgb, ivec3({}, int(layer)), 0).rgb"
     else:

@@ -63,12 +63,13 @@ def index_fragment_shader(pages: int = 1) -> str:
     as in ``neural.texture.bilinear_corners``) the same on the uv's page."""
     if pages <= 1:
         return INDEX_FRAGMENT_SHADER
+    from ..bake.glsl import page_lines  # noqa: PLC0415
+
     return (INDEX_FRAGMENT_SHADER
             .replace("uniform usampler2D u_index;", "uniform usampler2DArray u_index;")
             .replace("    ivec2 size = textureSize(u_index, 0);\n",
-                     "    ivec2 size = textureSize(u_index, 0).xy;\n"
-                     f"    float vp = v_uv.y * {pages}.0;\n"
-                     f"    float layer = clamp(floor(vp), 0.0, {pages - 1}.0);\n")
+                     "\n".join(["    ivec2 size = textureSize(u_index, 0).xy;",
+                                *page_lines("v_uv", pages, "    "), ""]))
             .replace("floor(v_uv * vec2(size))", "floor(vec2(v_uv.x, vp - layer) * vec2(size))")
             .replace("texelFetch(u_index, texel, 0)", "texelFetch(u_index, ivec3(texel, int(layer)), 0)"))
 
