@@ -5,7 +5,8 @@ Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature
     manifest.json        format, sizes, model settings, sha256 of every other file; ``core_faces``: null for a
                          single-layer mesh, else the number of core faces (faces[:core_faces] the core,
                          the rest the shell; see ``MeshData.core_faces``); a missing key reads as null;
-                         ``shaders``: 2 when the fragment shader holds one MLP per layer (picked by ``u_layer``)
+                         ``shaders``: 2 when the fragment shader holds one MLP per layer (picked by ``u_layer``);
+                         ``normal_smoothing``: rounds of the shading normals' smoothing (absent: 0)
     mesh.npz             float32 vertices (V,3), float32 uvs (V,2), int32 faces (F,3)
     feature_index.png    16-bit grayscale PNG of the (H, W) code indices (row 0 = v = 0, i.e. the image
                          looks upside down in a viewer), lossless; an atlas in ``atlas_pages`` P > 1 pages
@@ -36,6 +37,9 @@ layers (``manifest["skybox"]``) carry their own float64 centre.
 
 Versions: a single-layer bundle is written as format version 2, a two-layer one (``core_faces`` set) as 3, so a
 reader that predates the layers refuses it instead of letting the shell hide the core; both are read here.
+A bundle whose shading normals are smoothed (manifest ``normal_smoothing`` k > 0, ``MeshData.normal_smoothing``:
+every player computes ``MeshData.vertex_normals`` with k rounds of one-ring averaging) is version 5, whatever
+else it has, so an older reader, which would feed its facing input the plain normals, refuses it.
 """
 
 from __future__ import annotations
@@ -58,7 +62,8 @@ FORMAT = "neuras-bundle"
 FORMAT_VERSION = 2
 TWO_LAYER_FORMAT_VERSION = 3            # written only for a two-layer mesh (manifest ``core_faces`` not null)
 PAGES_FORMAT_VERSION = 4                # written only for an atlas in pages (manifest ``atlas_pages`` > 1)
-READABLE_VERSIONS = (1, 2, 3, 4)
+NORMALS_FORMAT_VERSION = 5              # written only with smoothed shading normals (``normal_smoothing`` > 0)
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 #: Textures that hold the atlas's pages stacked along their rows, played as a texture array of
 #: ``atlas_pages`` layers when there are several (the index map; a plain bundle's RGB texture).
 PAGED_TEXTURES = ("u_index", "u_rgb")
@@ -145,7 +150,8 @@ class Bundle:
                 h.update(f"{type(value).__name__} {value!r}|".encode())
 
         m = self.mesh
-        for value in (m.vertices, m.uvs, m.faces, m.core_faces, self.fragment_shader, self.vertex_shader,
+        for value in (m.vertices, m.uvs, m.faces, m.core_faces, m.normal_smoothing, self.fragment_shader,
+                      self.vertex_shader,
                       self.sky_fragment_shader, self.background_color, self.plain_rgb):
             add(value)
         for name in sorted(self.textures):
@@ -187,8 +193,13 @@ class Bundle:
             files[PLAIN_FILE] = encode_png_rgb(self.plain_rgb)
         core_faces = _core_faces(m.core_faces, m.num_faces, "the mesh")
         manifest = dict(self.manifest)
-        version = (PAGES_FORMAT_VERSION if atlas_pages(self.manifest) > 1 else
+        version = (NORMALS_FORMAT_VERSION if m.normal_smoothing > 0 else
+                   PAGES_FORMAT_VERSION if atlas_pages(self.manifest) > 1 else
                    FORMAT_VERSION if core_faces is None else TWO_LAYER_FORMAT_VERSION)
+        if m.normal_smoothing > 0:
+            manifest["normal_smoothing"] = int(m.normal_smoothing)
+        else:
+            manifest.pop("normal_smoothing", None)
         manifest.update(format=FORMAT, format_version=version, core_faces=core_faces,
                         background_color=[float(x) for x in self.background_color],
                         files={k: {"bytes": len(v), "sha256": hashlib.sha256(v).hexdigest()} for k, v in files.items()})
@@ -350,7 +361,8 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
             "component": "unused codes",
             "reason": f"{model.num_codes - k} of {model.num_codes} codebook entries are used by no texel and "
                       "were dropped"}]
-    return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs, core_faces=core_faces),
+    return Bundle(mesh=MeshData(mesh.vertices, mesh.faces, mesh.uvs, core_faces=core_faces,
+                                normal_smoothing=int(mesh.normal_smoothing)),
                   textures=textures,
                   fragment_shader=generate_fragment_shader(model, codes_per_row=per_row),
                   background_color=background_color,
@@ -444,6 +456,11 @@ def _load_files(d: Path, read, exists) -> Bundle:
     if mesh.faces.size and (mesh.faces.min() < 0 or mesh.faces.max() >= mesh.num_vertices):
         raise BadInputError(f"bundle {d}: mesh.npz faces index missing vertices")
     mesh.core_faces = _core_faces(manifest.get("core_faces"), mesh.num_faces, f"bundle {d}: manifest.json")
+    smoothing = manifest.get("normal_smoothing", 0)
+    if isinstance(smoothing, bool) or not isinstance(smoothing, int) or not 0 <= smoothing <= 10000:
+        raise BadInputError(f"bundle {d}: manifest.json says normal_smoothing {smoothing!r}; expected an integer "
+                            "in [0, 10000]")
+    mesh.normal_smoothing = smoothing
     try:
         frag = raw["shader.frag"].decode("utf-8")
         vert = raw["shader.vert"].decode("utf-8") if "shader.vert" in raw else None

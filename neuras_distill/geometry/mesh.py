@@ -21,6 +21,9 @@ class MeshData:
         core_faces: two-layer meshes (a soft fringe's shell around the opaque surface): faces[:core_faces] are
             the core, faces[core_faces:] the shell; a pixel shows the nearest core fragment when a core face
             covers it, else the nearest shell fragment. None: one layer.
+        normal_smoothing: rounds of one-ring averaging applied to :meth:`vertex_normals` (0: the plain
+            area-weighted normals). The shading normals of a mesh whose shader takes the facing cosine (a fringe
+            shell's fade follows the surface's large-scale orientation, not the facets of a bumpy surface).
     """
 
     vertices: np.ndarray
@@ -28,6 +31,7 @@ class MeshData:
     uvs: np.ndarray | None = None
     stats: dict = field(default_factory=dict)
     core_faces: int | None = None
+    normal_smoothing: int = 0
 
     def __post_init__(self) -> None:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32).reshape(-1, 3)
@@ -54,7 +58,9 @@ class MeshData:
     def vertex_normals(self) -> np.ndarray:
         """(V, 3) float32 unit vertex normals: the area-weighted sum of the normals of the faces around each
         vertex *position* (vertices a UV seam duplicates share one normal, so shading is continuous across
-        charts), computed in float64; zero where every face around is degenerate. Frame: the vertices'."""
+        charts), computed in float64; zero where every face around is degenerate. With ``normal_smoothing`` k,
+        then k rounds of replacing each position's unit normal by the normalised sum of the unit normals of
+        the faces' corners around it (its one ring, itself included). Frame: the vertices'."""
         v = self.vertices.astype(np.float64)
         if not self.num_faces:
             return np.zeros((self.num_vertices, 3), np.float32)
@@ -65,9 +71,22 @@ class MeshData:
         summed = np.zeros((int(position.max()) + 1, 3))
         for corner in range(3):
             np.add.at(summed, position[self.faces[:, corner]], area_normal)
+        if self.normal_smoothing > 0:
+            summed = _smoothed_normals(summed, position[self.faces], int(self.normal_smoothing))
         n = summed[position]
         length = np.linalg.norm(n, axis=1, keepdims=True)
         return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0).astype(np.float32)
+
+    def normal_roughness_deg(self, rounds: int) -> float:
+        """Median angle in degrees between the plain vertex normals and the normals after ``rounds`` of smoothing
+        (:meth:`vertex_normals`): how far the facets of this surface turn from its larger-scale orientation
+        (0 without faces or rounds)."""
+        if not self.num_faces or rounds <= 0:
+            return 0.0
+        plain = MeshData(self.vertices, self.faces).vertex_normals().astype(np.float64)
+        smooth = MeshData(self.vertices, self.faces, normal_smoothing=int(rounds)).vertex_normals().astype(np.float64)
+        cos = np.clip((plain * smooth).sum(axis=1), -1.0, 1.0)
+        return float(np.degrees(np.median(np.arccos(cos))))
 
     def uv_area(self) -> float:
         """Fraction of the unit uv square the faces cover (sum of |uv triangle areas|, float64; 0 without uvs):
@@ -89,7 +108,7 @@ class MeshData:
             remap = np.full(self.num_vertices, -1, dtype=np.int64)
             remap[used] = np.arange(used.size)
             out.append(MeshData(self.vertices[used], remap[faces], None if self.uvs is None else self.uvs[used],
-                                dict(self.stats)))
+                                dict(self.stats), normal_smoothing=self.normal_smoothing))
         return out
 
     @classmethod
@@ -104,6 +123,7 @@ class MeshData:
     def __repr__(self) -> str:
         uv = "none" if self.uvs is None else f"{self.uvs.shape} {self.uvs.dtype}"
         layers = "" if self.core_faces is None else f", core_faces={self.core_faces}"
+        layers += f", normal_smoothing={self.normal_smoothing}" if self.normal_smoothing else ""
         return (f"MeshData(vertices={self.vertices.shape} {self.vertices.dtype}, "
                 f"faces={self.faces.shape} {self.faces.dtype}, uvs={uv}{layers})")
 
@@ -113,13 +133,30 @@ class MeshData:
             arrays["uvs"] = self.uvs
         if self.core_faces is not None:
             arrays["core_faces"] = np.asarray(self.core_faces, dtype=np.int64)
+        if self.normal_smoothing:
+            arrays["normal_smoothing"] = np.asarray(self.normal_smoothing, dtype=np.int64)
         np.savez_compressed(path, **arrays)
 
     @classmethod
     def load_npz(cls, path) -> "MeshData":
         with np.load(path, allow_pickle=False) as data:
             return cls(data["vertices"], data["faces"], data["uvs"] if "uvs" in data else None,
-                       core_faces=int(data["core_faces"]) if "core_faces" in data else None)
+                       core_faces=int(data["core_faces"]) if "core_faces" in data else None,
+                       normal_smoothing=int(data["normal_smoothing"]) if "normal_smoothing" in data else 0)
+
+
+def _smoothed_normals(summed: np.ndarray, corners: np.ndarray, rounds: int) -> np.ndarray:
+    """(P, 3) per-position normal sums -> unit normals after ``rounds`` of one-ring averaging over the faces'
+    ``corners`` (F, 3) position indices (:meth:`MeshData.vertex_normals`); a position without a normal of its own
+    takes its ring's."""
+    unit = summed / np.maximum(np.linalg.norm(summed, axis=1, keepdims=True), 1e-300)
+    for _ in range(rounds):
+        around = unit[corners].sum(axis=1)                    # (F, 3): each face's corners' normals
+        acc = np.zeros_like(unit)
+        for corner in range(3):
+            np.add.at(acc, corners[:, corner], around)
+        unit = acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
+    return unit
 
 
 #: Mesh extents (world units) that pymeshlab's quadric collapse and xatlas handle as they are. Both test lengths

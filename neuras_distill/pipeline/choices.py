@@ -161,6 +161,26 @@ def facing_input(mesh, enclose: bool, record: Decisions) -> bool:
     return False
 
 
+def shading_normals(mesh, use_facing: bool, rounds: int, record: Decisions) -> int:
+    """Rounds of normal smoothing for the facing input (``MeshData.normal_smoothing``): ``rounds`` when the
+    mesh's normals are rough (their median turn under smoothing above ``decisions.ROUGH_NORMALS_DEG``: a surface
+    fused from a NeRF's depths), else 0; without the facing input the normals are not used and nothing is
+    recorded."""
+    if not use_facing or rounds <= 0:
+        return 0
+    rough = mesh.normal_roughness_deg(rounds)
+    measured = {"normal_roughness_deg": rough, "rounds": rounds}
+    if rough > decisions.ROUGH_NORMALS_DEG:
+        record.keep("smoothed shading normals", f"the surface's vertex normals turn a median {rough:.1f} degrees "
+                    f"under {rounds} rounds of smoothing (above {decisions.ROUGH_NORMALS_DEG:g}): the facing input "
+                    "reads the smoothed ones", **measured)
+        return int(rounds)
+    record.leave_out("smoothed shading normals", f"the surface's vertex normals turn a median {rough:.1f} degrees "
+                     f"under smoothing (at most {decisions.ROUGH_NORMALS_DEG:g}): they are kept as they are",
+                     **measured)
+    return 0
+
+
 def view_dependence(field: Field, mesh, cfg: DistillConfig, record: Decisions,
                     fringe_shell: bool = False) -> tuple[bool, float | None]:
     """(use the view direction, measured spread). A mesh moved out to a soft fringe's shell keeps it whatever

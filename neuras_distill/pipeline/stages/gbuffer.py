@@ -32,9 +32,11 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
     cfg, train, mesh = ctx.cfg, views.train, geometry.mesh
     ctx.clock.start("gbuffer", f"rasterizing {mesh.num_faces} faces for {len(train)} views (OpenGL)")
     origin = scene_origin(ctx.field)
+    smoothing = choices.shading_normals(mesh, inputs.use_facing, cfg.texture.normal_smoothing, ctx.decisions)
     local_mesh = MeshData((mesh.vertices.astype(np.float64) - origin).astype(np.float32), mesh.faces, mesh.uvs,
-                          mesh.stats, core_faces=mesh.core_faces)
-    key = digest("gbuffer", ctx.keys["geometry"], train.to_json(), cfg.geometry.cull_back_faces)
+                          mesh.stats, core_faces=mesh.core_faces, normal_smoothing=smoothing)
+    key = digest("gbuffer", ctx.keys["geometry"], train.to_json(), cfg.geometry.cull_back_faces,
+                 *(("normal smoothing", smoothing) if smoothing else ()))
     gbuffer = ctx.cached("gbuffer", key,
                          lambda: rasterize_gbuffer(local_mesh, shift_cameras(train, origin),
                                                    cull_back_faces=cfg.geometry.cull_back_faces),
