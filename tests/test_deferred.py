@@ -106,3 +106,18 @@ def test_two_layer_sources_hold_one_function_per_layer(tmp_path):
     assert src.count("void neuras_shade_core()") == 1 and src.count("void neuras_shade_shell()") == 1
     assert "#undef MESH_LAYER" in src and "neuras_core_faces" in src
     assert deferred.GROUP[0] * deferred.GROUP[1] == 128
+
+
+def test_a_shader_outside_the_compute_interface_plays_forward_unless_deferred_is_asked_for(tmp_path, monkeypatch):
+    from neuras_distill.errors import BadInputError
+    from neuras_distill.playback import renderer as renderer_module
+
+    path, _ = _run_folder(tmp_path, "single")
+    bundle = load_bundle(path)
+    bundle.fragment_shader = bundle.fragment_shader.replace("void main() {", "void main() {\n    if (v_uv.x < -1.0) discard;")
+    with pytest.raises(BadInputError, match="compute passes"):
+        BundleRenderer(bundle, shading="deferred")
+    monkeypatch.setattr(renderer_module, "software_gl", lambda renderer: False)     # as on a rasterizing GPU
+    with BundleRenderer(bundle) as r:
+        assert r.shading == "forward" and r.deferred is None
+        assert r.render(_cameras(None), 0).shape == (96, 128, 3)

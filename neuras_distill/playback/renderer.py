@@ -177,12 +177,19 @@ class BundleRenderer:
                     program[name].value = unit
         if shading not in (None, "forward", "deferred"):
             raise ValueError(f"shading must be 'forward' or 'deferred', got {shading!r}")
-        if shading is None:
+        automatic = shading is None
+        if automatic:
             shading = "deferred" if (not software and compute_supported(self.ctx)) else "forward"
-        self.shading = shading
         self.deferred = None
         if shading == "deferred":
-            self.deferred = DeferredFrame(self.ctx, moderngl, bundle, self.silhouette_blend, self.background)
+            try:
+                self.deferred = DeferredFrame(self.ctx, moderngl, bundle, self.silhouette_blend, self.background)
+            except BadInputError:
+                if not automatic:                # asked for by name: say why it cannot be
+                    raise
+                shading = "forward"              # a shader outside the compute interface still plays forward
+        self.shading = shading
+        if self.deferred is not None:
             self._resources.append(self.deferred)
             self.deferred.bind_texture_units([(name, unit) for unit, (name, _) in
                                               enumerate(sorted(bundle.textures.items()))])
