@@ -114,7 +114,8 @@ def test_a_shader_outside_the_compute_interface_plays_forward_unless_deferred_is
 
     path, _ = _run_folder(tmp_path, "single")
     bundle = load_bundle(path)
-    bundle.fragment_shader = bundle.fragment_shader.replace("void main() {", "void main() {\n    if (v_uv.x < -1.0) discard;")
+    bundle.fragment_shader = bundle.fragment_shader.replace("void main() {",
+                                                            "void main() {\n    if (v_uv.x < -1.0) discard;")
     with pytest.raises(BadInputError, match="compute passes"):
         BundleRenderer(bundle, shading="deferred")
     monkeypatch.setattr(renderer_module, "software_gl", lambda renderer: False)     # as on a rasterizing GPU

@@ -381,8 +381,8 @@ class BundleRenderer:
 
         Cycles through ``indices`` (default all cameras); ``warmup`` frames are drawn first and not counted.
         Returns ``{"median_ms", "p10_ms", "p90_ms", "fps" (1000 / median_ms), "frames", "resolution" [W, H],
-        "times_ms" (every timed frame, in order), "gpu_median_ms", "pipelined_ms", "pipelined_fps", "shading"}`` (``shading``: "forward" or "deferred", the path
-        that drew them).
+        "times_ms" (every timed frame, in order), "gpu_median_ms", "pipelined_ms", "pipelined_fps", "shading"}``
+        (``shading``: "forward" or "deferred", the path that drew them).
         """
         idx = list(range(len(cameras))) if indices is None else [int(k) for k in indices]
         if not idx:
