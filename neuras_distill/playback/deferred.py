@@ -374,4 +374,5 @@ class DeferredFrame:
         self._resources.clear()
 
 
-__all__ = ["GROUP", "DEPTH_UNIT", "FACE_UNIT", "SCENE_UNIT", "VISIBILITY_FRAGMENT_SHADER", "compute_shading_source", "compute_supported", "DeferredFrame"]
+__all__ = ["GROUP", "DEPTH_UNIT", "FACE_UNIT", "SCENE_UNIT", "VISIBILITY_FRAGMENT_SHADER", "compute_shading_source",
+           "compute_supported", "DeferredFrame"]
