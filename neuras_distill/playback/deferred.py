@@ -209,19 +209,13 @@ _TRIVIAL_COMPUTE = "#version 430\nlayout(local_size_x = 1) in;\nvoid main() {}\n
 
 
 def compute_supported(ctx) -> bool:
-    """Whether ``ctx`` compiles compute shaders (GL 4.3, or the NVIDIA driver's 3.3 contexts, which do)."""
-    cached = getattr(ctx, "_neuras_compute", None)
-    if cached is None:
-        try:
-            ctx.compute_shader(_TRIVIAL_COMPUTE).release()
-            cached = True
-        except Exception:                   # noqa: BLE001 - moderngl.Error, or no compute_shader at all
-            cached = False
-        try:
-            ctx._neuras_compute = cached
-        except AttributeError:
-            pass
-    return cached
+    """Whether ``ctx`` compiles compute shaders (GL 4.3, or the NVIDIA driver's 3.3 contexts, which do): one
+    trivial compute shader compiled and released (a millisecond; asked once per renderer)."""
+    try:
+        ctx.compute_shader(_TRIVIAL_COMPUTE).release()
+    except Exception:                       # noqa: BLE001 - moderngl.Error, or no compute_shader at all
+        return False
+    return True
 
 
 def _set(program, name: str, value) -> None:
