@@ -5,7 +5,8 @@
     python benchmarks/device_runs.py --device cuda --out /tmp/cuda_fp16 --scenes demo -- --precision fp16
 
 Each scene is the command a user types (``neuras-distill demo``, ``from-ngp tests/data/ngp/ball.ingp``,
-``from-synthetic street``) with ``--device`` and held-out frames 1920 pixels wide, run in a child process and
+``from-synthetic street``, ``from-synthetic city``) with ``--device`` and held-out frames 1920 pixels wide
+(``--eval-width 0``: the preset's own), run in a child process and
 timed from outside (wall clock, including the interpreter's start). The table comes from each run's
 report.json: ``stage_seconds``, field and bundle FPS at the same cameras, the speedup, PSNR / FLIP against the
 field, the training steps the plan chose and what ran each side (``report.device``). A scene that fails is
@@ -27,14 +28,16 @@ SCENES = {
     "ngp-ball": ["from-ngp", str(ROOT / "tests/data/ngp/ball.ingp")],
     "ngp-bunny": ["from-ngp", str(ROOT / "tests/data/ngp/bunny.ingp")],
     "street": ["from-synthetic", "street"],
+    "city": ["from-synthetic", "city"],
 }
 
 
 def run_scene(name: str, device: str, out: Path, eval_width: int, extra: list[str]) -> dict:
     """Run one scene into ``out/name``; return its report (or the failure) with the outside wall time."""
     run_dir = out / name
+    width = ["--eval-width", str(eval_width)] if eval_width > 0 else []      # 0: the scene preset's own
     cmd = [sys.executable, "-m", "neuras_distill.cli", *SCENES[name], "--out", str(run_dir),
-           "--device", device, "--eval-width", str(eval_width), "--fresh", *extra]
+           "--device", device, *width, "--fresh", *extra]
     log = out / f"{name}.log"
     start = time.perf_counter()
     with open(log, "w") as fh:
@@ -75,7 +78,7 @@ def main() -> int:
     parser.add_argument("--device", default="cuda")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--scenes", default="demo,ngp-ball,street")
-    parser.add_argument("--eval-width", type=int, default=1920)
+    parser.add_argument("--eval-width", type=int, default=1920, help="held-out width; 0 keeps each preset's")
     parser.add_argument("extra", nargs="*", help="more options for every run (after --)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)

@@ -200,12 +200,35 @@ def test_chunk_size_does_not_change_result(sphere_renders):
     occ = out["sdf", "auto"][2].occupancy
     ref = out["sdf", "auto"][0]
     img = VolumeRenderer(s, 256, chunk=77, occupancy=occ).render(cams, 0)
-    for key in ("rgb", "depth", "opacity"):
-        assert np.abs(img[key] - ref[key]).max() < 1e-5, key
+    for key in ("rgb", "depth", "opacity"):     # rounds grow per chunk: early termination may cut elsewhere
+        assert np.abs(img[key] - ref[key]).max() < 2e-4, key
     # the segment length only moves where early termination (T < 1e-4) cuts a ray
     img = VolumeRenderer(s, 256, segment=5, occupancy=occ).render(cams, 0)
     for key in ("rgb", "opacity"):
         assert np.abs(img[key] - ref[key]).max() < 2e-4, key
+
+
+def test_rounds_grow_as_rays_finish(sphere_renders):
+    """Most rays stop at the sphere after a few segments; the few that pass beside it march the whole box in
+    longer rounds (same samples per round), not in ``segment``-step rounds: the picture is unchanged."""
+    s, cams, out = sphere_renders
+    occ = out["sdf", "auto"][2].occupancy
+    rounds = {}
+    images = {}
+    for mode in ("fixed", "growing"):
+        r = VolumeRenderer(s, 4096, segment=8, occupancy=occ)
+        if mode == "fixed":
+            r._steps_this_round = lambda started, live, remaining, r=r: r.segment
+        calls = []
+        march = r._march_segment
+        r._march_segment = lambda *a, **k: calls.append(1) or march(*a, **k)
+        images[mode], rounds[mode] = r.render(cams, 0), len(calls)
+    for key in ("rgb", "opacity"):
+        assert np.abs(images["fixed"][key] - images["growing"][key]).max() < 2e-4, key
+    assert rounds["growing"] <= rounds["fixed"] / 2, rounds           # 305 -> 120 rounds here
+    r = VolumeRenderer(s, 256, segment=32)
+    assert [r._steps_this_round(1000, live, 10_000) for live in (1000, 400, 10, 0)] == [32, 64, 512, 512]
+    assert r._steps_this_round(1000, 10, 40) == 64 and r._steps_this_round(1000, 1000, 1) == 32   # not past the end
 
 
 def test_render_rays_background_and_misses():

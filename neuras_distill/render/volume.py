@@ -146,12 +146,14 @@ class VolumeRenderer:
             acc_w = torch.zeros(ids.numel(), **on)
             acc_half = torch.zeros(ids.numel(), 2, **on)
             trans = torch.ones(ids.numel(), **on)
-            ks = torch.arange(self.segment, dtype=torch.float32, **on)
+            longest, started = int(n_steps.max()), ids.numel()
             k0 = 0
             while ids.numel():
+                ks = torch.arange(self._steps_this_round(started, ids.numel(), longest - k0), dtype=torch.float32,
+                                  **on)
                 trans = self._march_segment(k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w,
                                             acc_half if crossings else None)
-                k0 += self.segment
+                k0 += ks.numel()
                 keep = (trans > self.early_stop) & (n_steps > k0)
                 if bool(keep.all()):
                     continue
@@ -166,6 +168,18 @@ class VolumeRenderer:
         rgb = out_rgb + (1.0 - out_w).clamp(min=0.0)[:, None] * self.background(dirs)
         return {"rgb": rgb.clamp(0.0, 1.0), "depth": depth, "surface_depth": out_half[:, 0],
                 "fringe_depth": out_half[:, 1], "opacity": out_w.clamp(0.0, 1.0)}
+
+    def _steps_this_round(self, started: int, live: int, remaining: int) -> int:
+        """Steps per live ray in the next round: ``segment`` while all ``started`` rays of the chunk march, then
+        as many more as the finished rays free (the first round's samples, so its memory), at most 16 segments
+        and not past the longest ray's end. Each round costs a fixed number of kernel launches and host syncs
+        besides its samples: a GPU with a whole view in one chunk and a few sky rays marching the whole
+        diagonal spent almost all of its time in those (the 1.2 km city: 64 rounds of 32 steps, 10 s a view on
+        an H100 at any resolution). Only where rays stop changes: by at most one round's steps after their
+        transmittance fell below ``early_stop``."""
+        grow = max(1, min(16, started // max(1, live)))
+        whole = -(-max(1, remaining) // self.segment) * self.segment
+        return max(self.segment, min(self.segment * grow, whole))
 
     def _march_segment(self, k0, ks, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w,
                        acc_half) -> torch.Tensor:
