@@ -41,6 +41,15 @@ class CameraConfig:
     """Image height of generated cameras."""
     test_every: int = 12
     """Every n-th camera is held out for evaluation; the rest train."""
+    extra_views: Mode = "auto"
+    """Add training views near the training cameras, rendered by the field (``render/extra_views.py``): "auto"
+    when the mesh gets a soft-fringe shell (its colours change with the view direction) and every camera looks
+    at the scene from outside its box (a drive through a street has its lane shifts instead); "on", "off".
+    Held-out cameras are never used (``choices.extra_views``)."""
+    extra_views_fraction: float = 0.5
+    """Extra views as a fraction of the training views."""
+    extra_views_deg: float = 10.0
+    """Each extra view is a training camera turned about its look-at point by up to this many degrees."""
 
 
 @dataclass
@@ -288,7 +297,13 @@ class DistillConfig:
                 "image widths must be at least 16 (eval width 0: the cameras' own size)")
         from .precision import check_precision
         check_precision(self.teacher.precision)
-        require(self.cameras.num_views >= 2, "need at least 2 views (some train, some held out)")
+        c = self.cameras
+        require(c.num_views >= 2, "need at least 2 views (some train, some held out)")
+        _require_choice(c.extra_views, Mode, "cameras.extra_views")
+        require(0.0 <= c.extra_views_fraction <= 8.0,
+                f"cameras.extra_views_fraction must be in 0..8 (of the training views), got {c.extra_views_fraction}")
+        require(0.0 < c.extra_views_deg <= 45.0,
+                f"cameras.extra_views_deg must be in 0..45 degrees (exclusive of 0), got {c.extra_views_deg}")
         sb = self.skybox
         _require_choice(sb.mode, Mode, "skybox mode")
         require(1 <= sb.layers <= 16, f"skybox layer count must be in 1..16, got {sb.layers}")

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from ..errors import BadInputError
+from ..render.extra_views import rotation_about
 from .mesh import MeshData
 from .raycast import cast_rays, raycasting_scene
 
@@ -105,12 +106,6 @@ def _raycasting_scene(mesh: MeshData):
     return raycasting_scene(mesh.vertices, mesh.faces)
 
 
-def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    """(3, 3) float64 rotation by ``angle`` radians about the unit ``axis`` (Rodrigues)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
-
-
 def neighbour_cameras(cameras, distances: np.ndarray, margin_deg: float):
     """Cameras near the given ones: each turned by +-``margin_deg`` about its own up and right axes around
     its look-at point (``distances[i]`` along its optical axis: the median first-hit distance of its rays). Cameras with an infinite distance (seeing
@@ -127,7 +122,7 @@ def neighbour_cameras(cameras, distances: np.ndarray, margin_deg: float):
         target = eye - float(distances[i]) * rot[:, 2]            # -z is forward
         for axis in (rot[:, 1], rot[:, 0]):
             for sign in (1.0, -1.0):
-                r = _rotation(axis, sign * angle)
+                r = rotation_about(axis, sign * angle)
                 pose = np.eye(4)
                 pose[:3, :3], pose[:3, 3] = r @ rot, target + r @ (eye - target)
                 poses.append(pose)

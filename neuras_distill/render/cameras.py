@@ -119,6 +119,16 @@ class Cameras:
         sx, sy = width / self.width, height / self.height
         return Cameras(self.c2w, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height)
 
+    def joined(self, other: "Cameras | None") -> "Cameras":
+        """These cameras followed by ``other``'s (same image size; None: these alone)."""
+        if other is None:
+            return self
+        require((other.width, other.height) == (self.width, self.height),
+                f"cannot join cameras of {other.width}x{other.height} to {self.width}x{self.height}")
+        return Cameras(torch.cat([self.c2w, other.c2w]), torch.cat([self.fx, other.fx]),
+                       torch.cat([self.fy, other.fy]), torch.cat([self.cx, other.cx]), torch.cat([self.cy, other.cy]),
+                       self.width, self.height)
+
     def lane_shifted(self, metres: float) -> "Cameras":
         """Every camera moved by ``metres`` along its own right axis projected onto the horizontal plane
         (world z up) and renormalised; positive moves to the camera's right. Orientation and intrinsics are

@@ -10,7 +10,7 @@ import numpy as np
 from ...errors import require
 from ...render.cameras import Cameras
 from ...render.volume import VolumeRenderer
-from .. import decisions, evaluate
+from .. import choices, decisions, evaluate
 from ..cache import digest
 from ..stage_results import CameraSplit, TeacherResult, TrainingPlan
 from .context import RunContext, settings
@@ -35,7 +35,7 @@ def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
             f"held-out frames at most eval.max_upscale = {cfg.eval.max_upscale:g}x; 0 lifts that cap), not the "
             f"configured {cfg.teacher.train_width} / {cfg.eval.width}", train_width=train_width,
             eval_width=eval_width)
-    train = train_full.resized(train_width)
+    train = with_extra_views(ctx, train_full.resized(train_width), cameras)
     test = test_full.resized(eval_width) if cfg.eval.width else test_full    # 0: the cameras' own size
     if ctx.root is not None:
         (ctx.root / "cameras.json").write_text(json.dumps({"train": train.to_json(), "test": test.to_json()}))
@@ -47,6 +47,32 @@ def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
     ctx.clock.done(train=len(train), test=len(test), train_size=[train.width, train.height],
                    test_size=[test.width, test.height])
     return CameraSplit(train, test, sky_layers)
+
+
+def with_extra_views(ctx: RunContext, train: Cameras, cameras: Cameras) -> Cameras:
+    """``train`` followed by the extra views the run adds around it (``choices.extra_views``): whether the mesh
+    will get a fringe shell is judged on at most 8 of the training views rendered at their size (as the
+    geometry stage judges all of them), the look-at distances from a 32-pixel-wide render of each; the views
+    seeded by ``train.seed``."""
+    from ...render import extra_views
+
+    c = ctx.cfg.cameras
+    inside = extra_views.inside_box(cameras, ctx.field.aabb)
+    if c.extra_views == "off" or (c.extra_views == "auto" and inside.any()):
+        choices.extra_views(c.extra_views, inside, False, len(train), c.extra_views_fraction, ctx.decisions)
+        return train
+    probe = VolumeRenderer(ctx.field, num_steps=ctx.cfg.teacher.num_steps)
+    shell = False
+    if c.extra_views == "auto":
+        sample = train[list(range(0, len(train), max(1, len(train) // 8)))[:8]]
+        opacities = np.stack([probe.render(sample, i)["opacity"] for i in range(len(sample))])
+        shell = choices.fringe_shell(ctx.cfg.geometry.enclose_fringe, opacities, ctx.background,
+                                     choices.Decisions())
+    count = choices.extra_views(c.extra_views, inside, shell, len(train), c.extra_views_fraction, ctx.decisions)
+    if count == 0:
+        return train
+    distances = extra_views.look_at_distances(probe, train)
+    return train.joined(extra_views.extra_views(train, distances, count, c.extra_views_deg, ctx.cfg.train.seed))
 
 
 def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer, TeacherResult, TrainingPlan]:
