@@ -137,31 +137,41 @@ def sample_grid(fn: Callable[[torch.Tensor], torch.Tensor], aabb, resolution: in
     if device is None:
         device = aabb.device if isinstance(aabb, torch.Tensor) else "cpu"
     r0, r1, r2 = spec.shape
-    per_slice = r1 * r2
-    chunk_points = max(1, int(chunk_points))
-    slices_per_chunk = max(1, chunk_points // per_slice)
+    slices_per_chunk = max(1, max(1, int(chunk_points)) // (r1 * r2))
     grid = np.empty(spec.shape, dtype=np.float32)
-    flat = grid.reshape(r0, per_slice)
     nonfinite = 0
-    with torch.no_grad():
-        for i0 in range(0, r0, slices_per_chunk):
-            i1 = min(r0, i0 + slices_per_chunk)
-            pts = spec.points(i0, i1)
-            out = np.empty(pts.shape[0], dtype=np.float32)
-            for p0 in range(0, pts.shape[0], chunk_points):
-                p1 = min(pts.shape[0], p0 + chunk_points)
-                x = torch.from_numpy(pts[p0:p1]).to(device)
-                out[p0:p1] = _to_numpy(fn(x), p1 - p0)
-            bad = ~np.isfinite(out)
-            if bad.any():
-                nonfinite += int(bad.sum())
-                out[bad] = outside
-            flat[i0:i1] = out.reshape(i1 - i0, per_slice)
+    for i0 in range(0, r0, slices_per_chunk):
+        i1 = min(r0, i0 + slices_per_chunk)
+        grid[i0:i1], bad = sample_slab(fn, spec, i0, i1, outside=outside, chunk_points=chunk_points, device=device)
+        nonfinite += bad
     if stats is not None:
         stats.update(grid_shape=list(spec.shape), grid_spacing=spec.spacing.tolist(),
                      grid_origin=spec.origin.tolist(), grid_nonfinite=nonfinite,
                      grid_seconds=time.perf_counter() - t0)
     return grid
+
+
+def sample_slab(fn: Callable[[torch.Tensor], torch.Tensor], spec: GridSpec, i0: int, i1: int, *,
+                outside: float = 0.0, chunk_points: int = 1 << 20,
+                device: torch.device | str = "cpu") -> tuple[np.ndarray, int]:
+    """``fn`` on the x slices [i0, i1) of the lattice ``spec``: ((i1 - i0, R1, R2) float32 values, how many
+    NaN/Inf values were replaced by ``outside``), ``chunk_points`` points per call. The same values as those
+    slices of :func:`sample_grid`: every point comes from the lattice's global formula."""
+    per_slice = spec.shape[1] * spec.shape[2]
+    chunk_points = max(1, int(chunk_points))
+    step = max(1, chunk_points // per_slice)             # the points of a few slices at a time (float64 meshgrids)
+    out = np.empty((i1 - i0) * per_slice, dtype=np.float32)
+    with torch.no_grad():
+        for s0 in range(i0, i1, step):
+            s1 = min(i1, s0 + step)
+            pts = spec.points(s0, s1)
+            base = (s0 - i0) * per_slice
+            for p0 in range(0, pts.shape[0], chunk_points):
+                p1 = min(pts.shape[0], p0 + chunk_points)
+                out[base + p0:base + p1] = _to_numpy(fn(torch.from_numpy(pts[p0:p1]).to(device)), p1 - p0)
+    bad = ~np.isfinite(out)
+    out[bad] = outside
+    return out.reshape(i1 - i0, spec.shape[1], spec.shape[2]), int(bad.sum())
 
 
 def field_outside_value(kind: str, aabb) -> float:
