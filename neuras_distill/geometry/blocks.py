@@ -20,7 +20,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from skimage import measure
 
 from ..errors import BadInputError
 from .grid import GridSpec, sample_slab
@@ -33,13 +32,6 @@ BLOCK_MIN_POINTS = 1 << 25
 BLOCK_POINTS = 1 << 24
 
 
-def _tie_free(values: np.ndarray, level: float) -> float:
-    """``level`` nudged off values equal to it in ``values`` (``marching.nudge_level``)."""
-    from .marching import nudge_level
-
-    return nudge_level(values, level)
-
-
 def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, block_points: int = BLOCK_POINTS,
                           chunk_points: int = 1 << 20, device="cpu") -> MeshData:
     """Mesh the level set ``level`` of the SDF ``fn`` (x (N, 3) -> (N,), evaluated on ``device``) on the lattice
@@ -50,6 +42,8 @@ def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, b
     stats ``mc_blocks``, ``mc_block_slices``, ``grid_nonfinite``, ``grid_seconds`` (sampling) and
     ``mc_cavity_voxels`` = None (not filled). Raises BadInputError when the lattice holds no surface at ``level``.
     """
+    from .marching import lattice_marching_cubes, nudge_level, signed_volume   # (marching imports this module)
+
     r0, r1, r2 = spec.shape
     per_block = max(1, int(block_points) // (r1 * r2))
     starts = list(range(0, r0 - 1, per_block))
@@ -64,7 +58,7 @@ def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, b
             sampling += time.perf_counter() - t0
             nonfinite += bad
             lo, hi = min(lo, float(values.min())), max(hi, float(values.max()))
-            nudged = _tie_free(values, nudged)
+            nudged = nudge_level(values, nudged)
             if nudged != level:
                 break
             first, last = b == 0, i1 == r0
@@ -73,8 +67,7 @@ def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, b
             del values
             if not (float(padded.min()) < level < float(padded.max())):
                 continue                                      # no surface in this block
-            v, f, _, _ = measure.marching_cubes(padded, level=level, gradient_direction="descent",
-                                                allow_degenerate=False)
+            v, f = lattice_marching_cubes(padded, level, "descent")
             v = v.astype(np.float64) - np.array([1.0 if first else 0.0, 1.0, 1.0]) + np.array([i0, 0.0, 0.0])
             verts.append(v)
             faces.append(f.astype(np.int64) + count)
@@ -89,8 +82,6 @@ def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, b
     unique, inverse = np.unique(index_coords, axis=0, return_inverse=True)
     tri = inverse.reshape(-1)[np.concatenate(faces)]
     world = spec.origin + unique * spec.spacing
-    from .marching import signed_volume
-
     if signed_volume(world, tri) < 0:
         tri = tri[:, ::-1]
     stats = {"mc_cavity_voxels": None, "mc_blocks": len(starts), "mc_block_slices": per_block,

@@ -129,6 +129,14 @@ def folded_fraction(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float((cos < 0).mean())
 
 
+def lattice_marching_cubes(values: np.ndarray, level: float, gradient_direction: str) -> tuple[np.ndarray, np.ndarray]:
+    """scikit-image's marching cubes on ``values`` (R0, R1, R2) at ``level``, no degenerate triangles: (vertices
+    (V, 3) float32 in lattice index units, faces (F, 3) int). ``gradient_direction``: "descent" for an SDF."""
+    verts, faces, _, _ = measure.marching_cubes(values, level=level, gradient_direction=gradient_direction,
+                                                allow_degenerate=False)
+    return verts, faces
+
+
 def fill_cavities(values: np.ndarray, level: float, outward: float) -> tuple[np.ndarray, int]:
     """Fill regions on the outside side of ``level`` that are enclosed by inside voxels.
 
