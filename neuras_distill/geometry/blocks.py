@@ -48,7 +48,7 @@ def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, b
     per_block = max(1, int(block_points) // (r1 * r2))
     starts = list(range(0, r0 - 1, per_block))
     pad = np.float32(level + 1e4 * (abs(float(outside)) + abs(level) + 1.0))
-    for attempt in range(4):
+    for _ in range(4):
         verts, faces, count, lo, hi, nonfinite, sampling = [], [], 0, np.inf, -np.inf, 0, 0.0
         nudged = level
         for b, i0 in enumerate(starts):
@@ -75,6 +75,9 @@ def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, b
         else:
             break
         level = nudged                                        # a tie in a later block: mesh again at its level
+    else:
+        raise BadInputError(f"the field's SDF takes the iso-level's value exactly at lattice points for every "
+                            f"nudge tried (last {level!r}); pass another grid resolution")
     if not verts:
         raise BadInputError(f"the field has no surface inside its box at level {level:.4g} (its SDF spans "
                             f"{lo:.4g} .. {hi:.4g}); check the aabb and the field kind")

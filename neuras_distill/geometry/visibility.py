@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from ..errors import BadInputError
-from ..render.extra_views import rotation_about
+from ..render.extra_views import turned_about_look_at
 from .mesh import MeshData
 from .raycast import cast_rays, raycasting_scene
 
@@ -118,14 +118,9 @@ def neighbour_cameras(cameras, distances: np.ndarray, margin_deg: float):
         if not np.isfinite(distances[i]):
             continue
         c2w = cameras.c2w[i].double().numpy()
-        rot, eye = c2w[:3, :3], c2w[:3, 3]
-        target = eye - float(distances[i]) * rot[:, 2]            # -z is forward
-        for axis in (rot[:, 1], rot[:, 0]):
+        for axis in (c2w[:3, 1], c2w[:3, 0]):
             for sign in (1.0, -1.0):
-                r = rotation_about(axis, sign * angle)
-                pose = np.eye(4)
-                pose[:3, :3], pose[:3, 3] = r @ rot, target + r @ (eye - target)
-                poses.append(pose)
+                poses.append(turned_about_look_at(c2w, distances[i], axis, sign * angle))
                 keep.append(i)
     if not poses:
         return None

@@ -42,6 +42,17 @@ def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
 
 
+def turned_about_look_at(c2w: np.ndarray, distance: float, axis: np.ndarray, angle: float) -> np.ndarray:
+    """(4, 4) float64 camera-to-world of the camera ``c2w`` ((4, 4), -z forward) turned by ``angle`` radians
+    about the unit world ``axis`` through its look-at point ``distance`` ahead of it."""
+    rot, eye = c2w[:3, :3], c2w[:3, 3]
+    target = eye - float(distance) * rot[:, 2]
+    r = rotation_about(axis, angle)
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = r @ rot, target + r @ (eye - target)
+    return pose
+
+
 def extra_views(cameras: Cameras, distances: np.ndarray, count: int, max_deg: float, seed: int = 0) -> Cameras | None:
     """``count`` cameras near ``cameras`` (N, any size): camera ``order[j % M]`` of the M cameras with a finite
     distance (a seeded permutation) turned about its look-at point ``eye - distances[i] * z`` by an angle
@@ -57,14 +68,10 @@ def extra_views(cameras: Cameras, distances: np.ndarray, count: int, max_deg: fl
     for j in range(int(count)):
         i = int(order[j % order.size])
         c2w = cameras.c2w[i].double().numpy()
-        rot, eye = c2w[:3, :3], c2w[:3, 3]
-        target = eye - float(distances[i]) * rot[:, 2]                # -z is forward
         phi = rng.uniform(0.0, 2.0 * math.pi)
         angle = math.radians(float(max_deg)) * math.sqrt(rng.uniform())
-        r = rotation_about(math.cos(phi) * rot[:, 1] + math.sin(phi) * rot[:, 0], angle)
-        pose = np.eye(4)
-        pose[:3, :3], pose[:3, 3] = r @ rot, target + r @ (eye - target)
-        poses.append(pose)
+        axis = math.cos(phi) * c2w[:3, 1] + math.sin(phi) * c2w[:3, 0]      # in the image plane: no roll
+        poses.append(turned_about_look_at(c2w, distances[i], axis, angle))
         source.append(i)
     k = torch.as_tensor(source)
     return Cameras(torch.as_tensor(np.stack(poses)).float(), cameras.fx[k], cameras.fy[k], cameras.cx[k],

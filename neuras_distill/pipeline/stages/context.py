@@ -109,6 +109,17 @@ class RunContext:
         self.fingerprint = field_fingerprint(self.field)
         self.field = on_device(self.field, self.device, self.cfg.teacher.precision)
         self._background: Background | None = None
+        self._volume_renderer = None
+
+    @property
+    def volume_renderer(self):
+        """The run's teacher :class:`~neuras_distill.render.volume.VolumeRenderer` (``teacher.num_steps``), built
+        once: its occupancy grid samples the field, which the cameras stage's probes and the teacher share."""
+        if self._volume_renderer is None:
+            from ...render.volume import VolumeRenderer
+
+            self._volume_renderer = VolumeRenderer(self.field, num_steps=self.cfg.teacher.num_steps)
+        return self._volume_renderer
 
     @property
     def background(self) -> Background:

@@ -62,7 +62,7 @@ def with_extra_views(ctx: RunContext, train: Cameras, cameras: Cameras) -> Camer
     if c.extra_views == "off" or (c.extra_views == "auto" and inside.any()):
         choices.extra_views(c.extra_views, inside, False, len(train), c.extra_views_fraction, ctx.decisions)
         return train
-    probe = VolumeRenderer(ctx.field, num_steps=ctx.cfg.teacher.num_steps)
+    probe = ctx.volume_renderer
     shell = False
     if c.extra_views == "auto":
         sample = train[list(range(0, len(train), max(1, len(train) // 8)))[:8]].resized(max(64, train.width // 2))
@@ -82,7 +82,7 @@ def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer,
     cfg, train = ctx.cfg, views.train
     ctx.clock.start("teacher", f"volume-rendering {len(train)} training views at {train.width}x{train.height}, "
                                f"{cfg.teacher.num_steps} steps/ray")
-    teacher = VolumeRenderer(ctx.field, num_steps=cfg.teacher.num_steps)
+    teacher = ctx.volume_renderer
 
     def render() -> TeacherResult:
         t0 = time.perf_counter()
