@@ -266,7 +266,8 @@ def marching_cubes_field(field: Field, resolution: int | Sequence[int], level: f
             terminate (``colour_level.termination_points``). With ``fringe_check`` on a density field, the core
             then sits at the level the field's colour comes from (``colour_level.colour_level``) when that lies
             inside the surface level, and the shell encloses the fringe from there; kept only when the result
-            misses no more opaque pixels than the surface-level route (``stats['mc_colour_level']``).
+            misses no more opaque pixels than the surface-level route (``stats['mc_colour_level']``). With
+            ``depth_fusion`` the core is the fused SDF's colour level instead (:func:`_fused_colour_core`).
         shell: where that colour core's shell candidates come from: "offset" (surfaces at growing distances
             from the core, :func:`offset_grid`: as smooth as the core wherever the field's fringe is noise) or
             "level" (the density's own lower levels, :func:`outward_levels`).
@@ -307,10 +308,12 @@ def marching_cubes_field(field: Field, resolution: int | Sequence[int], level: f
         if depth_fusion is not None:
             grid, fused_stats = depth_fusion(spec)
             kind, level = "sdf", 0.0
-            mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, level)
-            stats.update(fused_stats, mc_surface_from="fused depth maps", mc_handles=mesh_handles(mesh))
             if fringe_check is not None:
                 shell_grid = depth_fusion(spec, fringe=True)[0]
+                if termination is not None:
+                    level = _fused_colour_core(grid, spec, termination, stats)
+            mesh = marching_cubes_grid(grid, spec.origin, spec.spacing, kind, level)
+            stats.update(fused_stats, mc_surface_from="fused depth maps", mc_handles=mesh_handles(mesh))
     if fringe_check is not None:
         core = None
         if kind == "density" and termination is not None and shell_grid is None:
@@ -415,6 +418,33 @@ def _colour_core(grid: np.ndarray, spec, level: float, termination, stats: dict)
     used = core > COLOUR_LEVEL_MIN_RATIO * level
     stats.update(mc_colour_level=core, mc_colour_level_points=found["points"], mc_colour_level_used=used)
     return core if used else None
+
+
+def _fused_colour_core(sdf: np.ndarray, spec, termination, stats: dict) -> float:
+    """The level of a fused-depth SDF (world units, negative inside) where the field's colour comes from: the
+    ``colour_level`` rule of the density path (the tan^2-weighted mean of the SDF at the termination points of
+    opaque training rays) on the fused surface. Fusion carves out to the deepest view's 0.5-opacity depth, where
+    head-on rays terminate; oblique rays terminate further out in the fringe, and a core inside their
+    termination shows them the surface shifted sideways (parallax at the rim). Clamped to
+    :data:`FUSED_COLOUR_MAX_VOXELS`; 0 when no termination point lies on the lattice. Records
+    ``mc_colour_level`` and ``mc_colour_level_points``.
+
+    Measured on the Instant-NGP ball (same stored teacher, 4.8k steps, held out at 384x216): the level came to
+    +0.44 voxel; interior PSNR 35.55 -> 36.16 dB, of it the ring 4-8 pixels inside the silhouette (12% of the
+    interior, 46% of its squared error) 29.5 -> 30.6 dB (training views 30.7 -> 31.6); overall 38.44 -> 38.73."""
+    points, dirs = termination
+    found = colour_level(-sdf, spec.origin, spec.spacing, points, dirs) if len(points) else None
+    if found is None:
+        return 0.0
+    bound = FUSED_COLOUR_MAX_VOXELS * float(spec.spacing.max())
+    level = float(np.clip(-found["log_level"], -bound, bound))
+    stats.update(mc_colour_level=level, mc_colour_level_points=found["points"], mc_colour_level_used=True)
+    return level
+
+
+#: The fused-depth core moves at most this many voxels from the fused surface (well inside the fusion's
+#: truncation, ``extract.FUSION_TRUNCATION_VOXELS``).
+FUSED_COLOUR_MAX_VOXELS = 2.0
 
 
 def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, tolerance: float,
