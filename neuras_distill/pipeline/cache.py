@@ -199,20 +199,35 @@ class StageCache:
     def cached(self, stage: str, key: str, compute: Callable[[], Any], save: Callable[[Any, Path], None],
                load: Callable[[Path], Any]) -> Any:
         """``load`` the stored stage when there is a valid one, else ``compute`` it and ``save`` it."""
-        folder = self.lookup(stage, key)
-        if folder is not None:
-            try:
-                result = load(folder)
-            except Exception as exc:  # noqa: BLE001 - a stored stage we cannot read is recomputed
-                self.log(f"stored {stage} stage {key} is not reused ({type(exc).__name__}: {exc}); recomputing it")
-                shutil.rmtree(folder, ignore_errors=True)
-            else:
-                self.reused.append(stage)
-                self.log(f"{stage}: reusing the stored stage ({key})")
-                return result
+        found, result = self._stored(stage, key, load)
+        if found:
+            return result
         result = compute()
         self.store(stage, key, lambda tmp: save(result, tmp))
         return result
+
+    def cached_files(self, stage: str, key: str, write: Callable[[Path], None], load: Callable[[Path], Any]) -> Any:
+        """Like :meth:`cached` for a stage that writes its files itself (``write(folder)``, e.g. arrays filled
+        view by view through ``numpy.lib.format.open_memmap``), so its result is never whole in memory; the
+        result is always ``load`` of the stored folder (memory-mapped, typically)."""
+        found, result = self._stored(stage, key, load)
+        return result if found else load(self.store(stage, key, write))
+
+    def _stored(self, stage: str, key: str, load: Callable[[Path], Any]) -> tuple[bool, Any]:
+        """(True, ``load(folder)``) for a valid stored stage, else (False, None); a stored stage that cannot be
+        read is removed and named in the log."""
+        folder = self.lookup(stage, key)
+        if folder is None:
+            return False, None
+        try:
+            result = load(folder)
+        except Exception as exc:  # noqa: BLE001 - a stored stage we cannot read is recomputed
+            self.log(f"stored {stage} stage {key} is not reused ({type(exc).__name__}: {exc}); recomputing it")
+            shutil.rmtree(folder, ignore_errors=True)
+            return False, None
+        self.reused.append(stage)
+        self.log(f"{stage}: reusing the stored stage ({key})")
+        return True, result
 
     def nbytes(self) -> int:
         """Bytes stored in this run's work area (hard links counted once per link)."""
@@ -241,7 +256,9 @@ def save_arrays(folder: Path, **arrays: np.ndarray) -> None:
 
 
 def load_arrays(folder: Path, *names: str, mmap: bool = False) -> list[np.ndarray]:
-    return [np.load(folder / f"{name}.npy", allow_pickle=False, mmap_mode="r" if mmap else None) for name in names]
+    """The arrays ``save_arrays`` wrote; ``mmap``: memory-mapped copy-on-write (pages are read from disk when
+    touched and the OS may drop them again; writing to one changes this process's copy, never the file)."""
+    return [np.load(folder / f"{name}.npy", allow_pickle=False, mmap_mode="c" if mmap else None) for name in names]
 
 
 def save_json(folder: Path, name: str, obj: Any) -> None:

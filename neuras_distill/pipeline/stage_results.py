@@ -56,9 +56,26 @@ class TeacherResult:
                     fringe_depths=self.fringe_depths)
         save_json(folder, "teacher.json", {"seconds": self.seconds})
 
+    @staticmethod
+    def write_views(folder: Path, renders, seconds: float) -> None:
+        """Store per-view renders (``evaluate.FieldRenders``) as :meth:`save` does, moving each view into the
+        files and dropping it from ``renders`` as it goes: never a stacked copy in memory beside the lists."""
+        lists = {"images": renders.images, "opacities": renders.opacities,
+                 "surface_depths": renders.surface_depths, "fringe_depths": renders.fringe_depths}
+        for name, views in lists.items():
+            first = np.asarray(views[0])
+            out = np.lib.format.open_memmap(folder / f"{name}.npy", mode="w+", dtype=np.float32,
+                                            shape=(len(views), *first.shape))
+            for i in range(len(views)):
+                out[i] = views[i]
+                views[i] = None
+            out.flush()
+            del out
+        save_json(folder, "teacher.json", {"seconds": float(seconds)})
+
     @classmethod
-    def load(cls, folder: Path) -> "TeacherResult":
-        arrays = load_arrays(folder, "images", "opacities", "surface_depths", "fringe_depths")
+    def load(cls, folder: Path, mmap: bool = False) -> "TeacherResult":
+        arrays = load_arrays(folder, "images", "opacities", "surface_depths", "fringe_depths", mmap=mmap)
         return cls(*arrays, seconds=float(load_json(folder, "teacher.json")["seconds"]))
 
 
@@ -101,15 +118,9 @@ class GeometryResult:
         return cls(mesh, info["density"])
 
 
-def save_gbuffer(gbuffer: GBuffer, folder: Path) -> None:
-    """One memory-mappable ``.npy`` per attribute."""
-    arrays = {"uv": gbuffer.uv, "face_id": gbuffer.face_id, "coverage": gbuffer.coverage, "depth": gbuffer.depth}
-    if gbuffer.normal is not None:
-        arrays["normal"] = gbuffer.normal
-    save_arrays(folder, **arrays)
-
-
 def load_gbuffer(folder: Path, mmap: bool = False) -> GBuffer:
+    """The G-buffer ``playback.rasterize.rasterize_gbuffer(..., out=folder)`` wrote, one ``.npy`` per attribute
+    (``mmap``: memory-mapped, ``cache.load_arrays``)."""
     uv, face_id, coverage, depth = load_arrays(folder, "uv", "face_id", "coverage", "depth", mmap=mmap)
     normal = load_arrays(folder, "normal", mmap=mmap)[0] if (folder / "normal.npy").exists() else None
     return GBuffer(uv, face_id, coverage, depth, normal)

@@ -16,6 +16,8 @@ calls; playback (``renderer.py``) uses it too.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ..geometry.mesh import MeshData
@@ -114,7 +116,8 @@ def _check_mesh(mesh: MeshData) -> None:
         raise ValueError(f"mesh core_faces must be None or an integer in [0, {mesh.num_faces}], got {core!r}")
 
 
-def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: bool = True) -> GBuffer:
+def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: bool = True,
+                      out: Path | None = None) -> GBuffer:
     """Rasterize ``mesh`` for every camera of ``cameras``.
 
     Args:
@@ -123,6 +126,8 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
         cameras: ``Cameras`` (N cameras, W x H).
         ctx: moderngl context (default :func:`context.get_context`).
         cull_back_faces: cull faces seen from behind (both layers alike).
+        out: a folder to write the arrays into as they are read back, one ``<attribute>.npy`` each (the names
+            of :class:`GBuffer`'s fields); the result then holds them memory-mapped, never all in memory.
     Returns:
         GBuffer with uv (N, H, W, 2) f32 (0 where empty), face_id (N, H, W) i32 (index into ``mesh.faces``,
         -1 where empty), coverage (N, H, W) bool, depth (N, H, W) f32 view-space depth along -z of the visible
@@ -131,15 +136,18 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
     n, w, h = len(cameras), int(cameras.width), int(cameras.height)
     _check_mesh(mesh)
     if mesh.num_faces == 0:
-        return _empty_gbuffer(n, h, w)
+        empty = _empty_gbuffer(n, h, w)
+        if out is not None:
+            for name in ("uv", "face_id", "coverage", "depth", "normal"):
+                np.save(Path(out) / f"{name}.npy", getattr(empty, name), allow_pickle=False)
+        return empty
     ctx = ctx if ctx is not None else get_context()
     moderngl = moderngl_module()
 
     bounds = mesh_bounds(mesh.vertices)
-    uv = np.empty((n, h, w, 2), np.float32)
-    face = np.empty((n, h, w), np.int32)
-    depth = np.empty((n, h, w), np.float32)
-    normal = np.empty((n, h, w, 3), np.float32)
+    uv, face, coverage, depth, normal = (_output_array(out, name, shape, dtype) for name, shape, dtype in (
+        ("uv", (n, h, w, 2), np.float32), ("face_id", (n, h, w), np.int32), ("coverage", (n, h, w), bool),
+        ("depth", (n, h, w), np.float32), ("normal", (n, h, w, 3), np.float32)))
 
     resources = []
     try:
@@ -167,18 +175,29 @@ def rasterize_gbuffer(mesh: MeshData, cameras, *, ctx=None, cull_back_faces: boo
             prog["u_view_z"].value = tuple(float(x) for x in view[2])
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             draw_mesh(vao, prog, layers)
+            # the shader writes face id + 1 so that the cleared value 0 means "empty"
+            face[i] = np.frombuffer(fbo.read(components=1, attachment=1, dtype="i4"), np.int32).reshape(h, w)[::-1] - 1
+            covered = face[i] >= 0
+            coverage[i] = covered
+            empty = ~covered
             uv[i] = np.frombuffer(fbo.read(components=2, attachment=0, dtype="f4"), np.float32).reshape(h, w, 2)[::-1]
-            face[i] = np.frombuffer(fbo.read(components=1, attachment=1, dtype="i4"), np.int32).reshape(h, w)[::-1]
             depth[i] = np.frombuffer(fbo.read(components=1, attachment=2, dtype="f4"), np.float32).reshape(h, w)[::-1]
             normal[i] = np.frombuffer(fbo.read(components=3, attachment=3, dtype="f4"),
                                       np.float32).reshape(h, w, 3)[::-1]
+            depth[i][empty] = np.inf
+            uv[i][empty] = 0.0
+            normal[i][empty] = 0.0
     finally:
         for r in reversed(resources):
             r.release()
-
-    face -= 1  # the shader writes face id + 1 so that the cleared value 0 means "empty"
-    coverage = face >= 0
-    depth[~coverage] = np.inf
-    uv[~coverage] = 0.0
-    normal[~coverage] = 0.0
+    for array in (uv, face, coverage, depth, normal):
+        if isinstance(array, np.memmap):
+            array.flush()
     return GBuffer(uv=uv, face_id=face, coverage=coverage, depth=depth, normal=normal)
+
+
+def _output_array(out: Path | None, name: str, shape: tuple, dtype) -> np.ndarray:
+    """An array to fill view by view: in memory, or ``out / <name>.npy`` memory-mapped."""
+    if out is None:
+        return np.empty(shape, dtype)
+    return np.lib.format.open_memmap(Path(out) / f"{name}.npy", mode="w+", dtype=dtype, shape=shape)

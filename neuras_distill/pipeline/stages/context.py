@@ -22,6 +22,8 @@ from ..choices import Background, Decisions
 
 #: The stages of a run, in order (their manifests are ``stages/<name>/manifest.json`` in the run folder).
 STAGE_NAMES = ("cameras", "teacher", "geometry", "gbuffer", "distill", "bake", "evaluate")
+#: The work area's folder of per-run arrays that are not stored stages (``RunContext.scratch_array``).
+SCRATCH = "scratch"
 
 
 def seed_stage(seed: int, stage: str) -> None:
@@ -135,6 +137,26 @@ class RunContext:
         if self.cache is None:
             return compute()
         return self.cache.cached(stage, key, compute, save, load)
+
+    def cached_files(self, stage: str, key: str, write: Callable[[Path], None], load: Callable[[Path], Any],
+                     compute: Callable[[], Any]) -> Any:
+        """The stored result of a stage that writes its own files (``StageCache.cached_files``: written by
+        ``write(folder)`` and returned as ``load(folder)``, memory-mapped), or ``compute()`` in memory without a
+        work area; records the key."""
+        self.keys[stage] = key
+        if self.cache is None:
+            return compute()
+        return self.cache.cached_files(stage, key, write, load)
+
+    def scratch_array(self, name: str, shape: tuple, dtype) -> np.ndarray:
+        """A writable array of ``shape`` for this run only: memory-mapped from ``<work>/scratch/<name>.npy`` when
+        the run has a work area (its pages go back to disk under memory pressure; the folder is pruned with the
+        work area's other unkept entries), else in memory."""
+        if self.cache is None:
+            return np.empty(shape, dtype)
+        folder = self.cache.work / SCRATCH
+        folder.mkdir(parents=True, exist_ok=True)
+        return np.lib.format.open_memmap(folder / f"{name}.npy", mode="w+", dtype=dtype, shape=tuple(shape))
 
     def progress_printer(self, label: str):
         """A ``(done, total)`` callback printing per-view progress about five times, or None."""

@@ -13,7 +13,7 @@ from ...playback.rasterize import rasterize_gbuffer
 from .. import choices
 from ..cache import digest
 from ..stage_results import Backdrop, CameraSplit, GeometryResult, ShaderInputs, TeacherResult, TrainingViews
-from ..stage_results import load_gbuffer, save_gbuffer
+from ..stage_results import load_gbuffer
 from .context import RunContext
 
 
@@ -37,12 +37,14 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
                           mesh.stats, core_faces=mesh.core_faces, normal_smoothing=smoothing)
     key = digest("gbuffer", ctx.keys["geometry"], train.to_json(), cfg.geometry.cull_back_faces,
                  *(("normal smoothing", smoothing) if smoothing else ()))
-    gbuffer = ctx.cached("gbuffer", key,
-                         lambda: rasterize_gbuffer(local_mesh, shift_cameras(train, origin),
-                                                   cull_back_faces=cfg.geometry.cull_back_faces),
-                         save_gbuffer, load_gbuffer)
-    ray_dirs = np.stack([train.rays(i)[1].numpy() for i in range(len(train))])      # (N, H, W, 3) world
-    dirs = view_inputs(ray_dirs, gbuffer.face_id, gbuffer.normal, inputs.use_facing, local_mesh.core_faces)
+    local_cameras = shift_cameras(train, origin)
+    cull = cfg.geometry.cull_back_faces
+    gbuffer = ctx.cached_files("gbuffer", key,
+                               lambda folder: rasterize_gbuffer(local_mesh, local_cameras, cull_back_faces=cull,
+                                                                out=folder),
+                               lambda folder: load_gbuffer(folder, mmap=True),
+                               lambda: rasterize_gbuffer(local_mesh, local_cameras, cull_back_faces=cull))
+    dirs = shader_view_inputs(ctx, train, gbuffer, inputs.use_facing, local_mesh.core_faces)
     use_skybox, reason = choices.skyboxes(cfg.skybox.mode, gbuffer.coverage, ctx.background, ctx.decisions)
     skybox, sky_origins, sky_pixels = None, None, None
     if use_skybox:
@@ -50,7 +52,7 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
         skybox = SkyboxModel(views.sky_layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
         sky_origins = views.sky_layers.relative(train.centers.double().numpy()).numpy()
         sky_pixels = choices.sky_training_pixels(teacher.surface_depths, gbuffer.coverage, train.centers.numpy(),
-                                                 ray_dirs, ctx.field.aabb, ctx.decisions)
+                                                 dirs[..., :3], ctx.field.aabb, ctx.decisions)
     missed = ~gbuffer.coverage
     if use_skybox or (missed.any() and not ctx.background.constant):
         # the clear colour: what the missed training pixels show on average (skyboxes draw over it)
@@ -60,3 +62,16 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
         clear = ctx.background.colour
     ctx.clock.done(key=key, coverage=float(gbuffer.coverage.mean()), skyboxes=use_skybox, skybox_reason=reason)
     return TrainingViews(origin, local_mesh, gbuffer, dirs), Backdrop(skybox, sky_origins, reason, clear, sky_pixels)
+
+
+def shader_view_inputs(ctx: RunContext, train, gbuffer, use_facing: bool, core_faces: int | None) -> np.ndarray:
+    """(N, H, W, C) float32 ``neural.model.view_inputs`` of every training pixel (world ray directions first),
+    filled view by view into ``ctx.scratch_array`` (memory-mapped in the work area): like the G-buffers, never
+    all in memory at once."""
+    n, h, w = gbuffer.coverage.shape
+    columns = 3 + int(use_facing) + int(core_faces is not None)
+    dirs = ctx.scratch_array("view_inputs", (n, h, w, columns), np.float32)
+    for i in range(n):
+        normal = None if gbuffer.normal is None else gbuffer.normal[i]
+        dirs[i] = view_inputs(train.rays(i)[1].numpy(), gbuffer.face_id[i], normal, use_facing, core_faces)
+    return dirs

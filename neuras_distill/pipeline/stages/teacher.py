@@ -84,16 +84,21 @@ def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer,
                                f"{cfg.teacher.num_steps} steps/ray")
     teacher = ctx.volume_renderer
 
-    def render() -> TeacherResult:
+    def render_lists():
         t0 = time.perf_counter()
         render_views = ctx.pool.render_views if ctx.pool is not None else evaluate.render_field_views
         out = render_views(teacher, train, ctx.progress_printer("teacher"), depths=True)
+        return out, time.perf_counter() - t0
+
+    def render() -> TeacherResult:
+        out, seconds = render_lists()
         return TeacherResult(np.stack(out.images).astype(np.float32), np.stack(out.opacities),
-                             np.stack(out.surface_depths), np.stack(out.fringe_depths),
-                             seconds=time.perf_counter() - t0)
+                             np.stack(out.surface_depths), np.stack(out.fringe_depths), seconds=seconds)
 
     key = digest("teacher", ctx.fingerprint, train.to_json(), settings(cfg.teacher))
-    result = ctx.cached("teacher", key, render, TeacherResult.save, TeacherResult.load)
+    # written view by view, then memory-mapped: the renders are not held in memory through the later stages
+    result = ctx.cached_files("teacher", key, lambda folder: TeacherResult.write_views(folder, *render_lists()),
+                              lambda folder: TeacherResult.load(folder, mmap=True), render)
     require(bool(np.isfinite(result.images).all()), "the field renders NaN or Inf colours; check its parameters")
     ctx.clock.done(views=len(train), key=key, render_seconds=result.seconds)
     plan_key = digest("plan", key, views.test.to_json(), settings(cfg.train, ("checkpoint_every_s",)),
