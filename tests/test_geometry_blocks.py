@@ -70,3 +70,30 @@ def test_a_lattice_without_surface_is_refused():
     spec = grid_spec(BOX, 17)
     with pytest.raises(BadInputError, match="no surface"):
         marching_cubes_blocks(lambda x: x.norm(dim=-1) + 5.0, spec, 0.0, outside=10.0, block_points=17 * 17 * 4)
+
+
+def test_decimation_in_blocks_gives_a_closed_mesh_on_the_surface_within_budget():
+    """Two spheres meshed at 160 (about 180k faces) decimated to 4000 faces whole and in 4 blocks: both closed,
+    within the budget, and as close to the true surface (the SDF at the vertices)."""
+    from neuras_distill.geometry.cleanup import clean_mesh, decimate, decimate_in_blocks, is_watertight
+
+    spec = grid_spec(BOX, 160)
+    grid = sample_grid(_two_spheres_and_a_cut, BOX, 160, outside=field_outside_value("sdf", BOX))
+    mesh = clean_mesh(marching_cubes_grid(grid, spec.origin, spec.spacing, "sdf", 0.0))
+    whole = decimate(mesh, 4000)
+    blocks = decimate_in_blocks(mesh, 4000, min_faces=0, block_faces=mesh.num_faces // 4 + 1)
+    assert blocks.stats["decimate_blocks"] == 4 and blocks.stats["decimate_faces_in"] == mesh.num_faces
+    assert 6000 < blocks.stats["decimate_faces_joined"] <= 8100        # each block to twice its share first
+    for m in (whole, blocks):
+        assert 3000 < m.num_faces <= 4000 and is_watertight(m.faces)
+    voxel = float(spec.spacing.max())
+
+    def surface_error(m):         # |SDF| at the vertices away from the box's cut (its caps are not on the SDF's zero)
+        v = torch.as_tensor(m.vertices)
+        away = ((v > BOX[0] + 2 * voxel) & (v < BOX[1] - 2 * voxel)).all(dim=1)
+        return float(_two_spheres_and_a_cut(v[away]).abs().max())
+
+    error = {"whole": surface_error(whole), "blocks": surface_error(blocks)}
+    assert error["blocks"] < 0.5 * voxel and error["blocks"] < 2.0 * error["whole"] + 0.05 * voxel, error
+    small = decimate_in_blocks(mesh, 4000)          # under the size threshold: the plain decimation, no blocks
+    assert "decimate_blocks" not in small.stats and small.num_faces == whole.num_faces

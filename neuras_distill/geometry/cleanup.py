@@ -215,13 +215,16 @@ def _looks_broken(v_in: np.ndarray, f_in_watertight: bool, v: np.ndarray, f: np.
 
 
 def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True, preserve_topology: bool = True,
-             optimal_placement: bool | None = None, planar_quadric: bool = True, max_passes: int = 3) -> MeshData:
+             optimal_placement: bool | None = None, planar_quadric: bool = True, max_passes: int = 3,
+             frame: tuple[np.ndarray, float] | None = None, weight: float | None = None) -> MeshData:
     """Quadric edge collapse down to at most ``face_budget`` faces.
 
     Args:
         mesh: cleaned mesh (run :func:`clean_mesh` first: floaters cannot be decimated away).
         face_budget: int >= 4.
         optimal_placement: None = automatic (see module docstring).
+        frame, weight: the collapse frame (``mesh.unit_frame``) and planar weight (:func:`planar_weight`);
+            None: this mesh's own (a block of a larger mesh gets the whole mesh's, :func:`decimate_in_blocks`).
 
     Returns:
         MeshData with stats ``decimate_faces_in``, ``decimate_faces_out``, ``decimate_passes``,
@@ -244,14 +247,14 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
                      decimate_seconds=time.perf_counter() - t0)
         return MeshData(mesh.vertices.copy(), mesh.faces.copy(), None, stats)
     # pymeshlab's quadric collapse has fixed epsilons: meshes far from unit size are collapsed at unit size
-    centre, size = unit_frame(v0)
+    centre, size = unit_frame(v0) if frame is None else frame
     v0 = (v0 - centre) / size
     lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
     extent = hi - lo
     auto = optimal_placement is None
     optimal = bool(extent.min() >= 0.01 * extent.max()) if auto else bool(optimal_placement)
     watertight = is_watertight(f0)
-    weight = planar_weight(v0, f0)
+    weight = planar_weight(v0, f0) if weight is None else float(weight)
     v, f = v0, f0
     passes = 0
     target = budget
@@ -276,4 +279,56 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
     return MeshData((v * size + centre).astype(np.float32), f.astype(np.int32), None, stats)
 
 
-__all__ = ["clean_mesh", "decimate", "smooth_rough", "ROUGH_FOLDED_FRACTION", "face_components", "is_watertight"]
+#: Meshes with more faces than this are decimated in blocks (:func:`decimate_in_blocks`).
+DECIMATE_BLOCK_MIN_FACES = 2_000_000
+#: Faces per block (about 1 GB of pymeshlab's and the watertightness check's temporaries each).
+DECIMATE_BLOCK_FACES = 1_500_000
+
+
+def decimate_in_blocks(mesh: MeshData, face_budget: int, *, min_faces: int = DECIMATE_BLOCK_MIN_FACES,
+                       block_faces: int = DECIMATE_BLOCK_FACES) -> MeshData:
+    """:func:`decimate` of a large mesh one block at a time, so its memory is a block's, not the whole mesh's.
+
+    The faces are cut into slabs of about ``block_faces`` along the mesh's longest box side (by centroid,
+    equal face counts). Each slab is decimated on its own to twice its share of the budget with its cut edges
+    kept (``preserve_boundary``: the slabs still meet vertex for vertex) and the whole mesh's frame, planar
+    weight and placement rule; the slabs are joined, their shared cut vertices welded (bit-identical
+    positions), and the joined mesh, now a few times the budget, is decimated as a whole to the budget, which
+    also collapses the dense seams along the cuts. A mesh of at most ``min_faces`` faces goes to
+    :func:`decimate` directly. Stats as :func:`decimate`'s, plus ``decimate_blocks``."""
+    budget = _check_budget(face_budget)
+    _require_mesh(mesh, "decimate")
+    faces_in = mesh.num_faces
+    if faces_in <= max(int(min_faces), 2 * budget):
+        return decimate(mesh, budget)
+    t0 = time.perf_counter()
+    v_all = mesh.vertices
+    centre, size = unit_frame(v_all)
+    extent = v_all.max(axis=0) - v_all.min(axis=0)
+    axis = int(np.argmax(extent))
+    optimal = bool(extent.min() >= 0.01 * extent.max())
+    weight = planar_weight((v_all.astype(np.float64) - centre) / size, mesh.faces)
+    blocks = int(np.ceil(faces_in / max(1, int(block_faces))))
+    centroid = v_all[mesh.faces, axis].mean(axis=1)                           # (F,) along the cut axis
+    order = np.argsort(centroid, kind="stable")
+    del centroid
+    parts_v, parts_f, offset = [], [], 0
+    for chunk in np.array_split(order, blocks):
+        sub_v, sub_f = _compact(v_all, mesh.faces[np.sort(chunk)])
+        share = max(4, int(np.ceil(2 * budget * len(chunk) / faces_in)))
+        part = decimate(MeshData(sub_v, sub_f, None, {}), share, preserve_boundary=True,
+                        optimal_placement=optimal, frame=(centre, size), weight=weight)
+        parts_v.append(part.vertices)
+        parts_f.append(part.faces.astype(np.int64) + offset)
+        offset += part.num_vertices
+    del order
+    joined_v, inverse = np.unique(np.concatenate(parts_v), axis=0, return_inverse=True)
+    joined_f = inverse.reshape(-1)[np.concatenate(parts_f)].astype(np.int32)
+    joined = MeshData(joined_v.astype(np.float32), joined_f, None, dict(mesh.stats))
+    out = decimate(joined, budget, optimal_placement=optimal, weight=weight)
+    out.stats.update(decimate_faces_in=int(faces_in), decimate_blocks=blocks,
+                     decimate_faces_joined=int(joined.num_faces), decimate_seconds=time.perf_counter() - t0)
+    return out
+
+
+__all__ = ["clean_mesh", "decimate", "decimate_in_blocks", "smooth_rough", "ROUGH_FOLDED_FRACTION", "face_components", "is_watertight"]

@@ -17,7 +17,7 @@ from ..errors import BadInputError
 from ..render.volume import FRINGE_OPACITY
 from .colour_level import termination_points
 from .depth_fusion import fused_depth_sdf
-from .cleanup import clean_mesh, decimate, smooth_rough
+from .cleanup import clean_mesh, decimate_in_blocks, smooth_rough
 from .marching import folded_fraction, marching_cubes_field
 from .mesh import MeshData
 from .unwrap import MAX_UNWRAP_FACES, UnwrapFailed, unwrap
@@ -338,7 +338,7 @@ def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int,
         counts["clean"] += layer.num_faces
 
         t = time.perf_counter()
-        layer = decimate(layer, budget)
+        layer = decimate_in_blocks(layer, budget)
         timings["decimate"] = timings.get("decimate", 0.0) + time.perf_counter() - t
         counts["dec"] += layer.num_faces
 
