@@ -207,6 +207,12 @@ def _quadric_pass(v: np.ndarray, f: np.ndarray, target: int, optimal: bool, pres
     return _from_meshset(ms)
 
 
+def _optimal_placement(extent: np.ndarray) -> bool:
+    """The automatic ``optimalplacement`` rule: on, unless the mesh's box (3,) ``extent`` is thin (smallest side
+    under 1% of the largest), where it makes spikes."""
+    return bool(extent.min() >= 0.01 * extent.max())
+
+
 def _looks_broken(v_in: np.ndarray, f_in_watertight: bool, v: np.ndarray, f: np.ndarray) -> bool:
     lo, hi = v_in.min(axis=0), v_in.max(axis=0)
     margin = 0.01 * float(np.linalg.norm(hi - lo))
@@ -252,7 +258,7 @@ def decimate(mesh: MeshData, face_budget: int, *, preserve_boundary: bool = True
     lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
     extent = hi - lo
     auto = optimal_placement is None
-    optimal = bool(extent.min() >= 0.01 * extent.max()) if auto else bool(optimal_placement)
+    optimal = _optimal_placement(extent) if auto else bool(optimal_placement)
     watertight = is_watertight(f0)
     weight = planar_weight(v0, f0) if weight is None else float(weight)
     v, f = v0, f0
@@ -306,7 +312,7 @@ def decimate_in_blocks(mesh: MeshData, face_budget: int, *, min_faces: int = DEC
     centre, size = unit_frame(v_all)
     extent = v_all.max(axis=0) - v_all.min(axis=0)
     axis = int(np.argmax(extent))
-    optimal = bool(extent.min() >= 0.01 * extent.max())
+    optimal = _optimal_placement(extent)
     weight = planar_weight((v_all.astype(np.float64) - centre) / size, mesh.faces)
     blocks = int(np.ceil(faces_in / max(1, int(block_faces))))
     centroid = v_all[mesh.faces, axis].mean(axis=1)                           # (F,) along the cut axis
@@ -331,4 +337,5 @@ def decimate_in_blocks(mesh: MeshData, face_budget: int, *, min_faces: int = DEC
     return out
 
 
-__all__ = ["clean_mesh", "decimate", "decimate_in_blocks", "smooth_rough", "ROUGH_FOLDED_FRACTION", "face_components", "is_watertight"]
+__all__ = ["clean_mesh", "decimate", "decimate_in_blocks", "smooth_rough", "ROUGH_FOLDED_FRACTION", "face_components",
+           "is_watertight"]

@@ -51,15 +51,11 @@ class TeacherResult:
     fringe_depths: np.ndarray
     seconds: float
 
-    def save(self, folder: Path) -> None:
-        save_arrays(folder, images=self.images, opacities=self.opacities, surface_depths=self.surface_depths,
-                    fringe_depths=self.fringe_depths)
-        save_json(folder, "teacher.json", {"seconds": self.seconds})
-
     @staticmethod
     def write_views(folder: Path, renders, seconds: float) -> None:
-        """Store per-view renders (``evaluate.FieldRenders``) as :meth:`save` does, moving each view into the
-        files and dropping it from ``renders`` as it goes: never a stacked copy in memory beside the lists."""
+        """Store per-view renders (``evaluate.FieldRenders``) as one ``.npy`` per attribute (what :meth:`load`
+        reads), moving each view into the files and dropping it from ``renders`` as it goes: never a stacked copy
+        in memory beside the lists."""
         lists = {"images": renders.images, "opacities": renders.opacities,
                  "surface_depths": renders.surface_depths, "fringe_depths": renders.fringe_depths}
         for name, views in lists.items():
