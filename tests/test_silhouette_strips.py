@@ -6,7 +6,7 @@ import pytest
 
 from neuras_distill.geometry.mesh import MeshData
 from neuras_distill.playback.projection import camera_near_far, mesh_bounds, mvp_for
-from neuras_distill.playback.silhouette import silhouette_edges
+from neuras_distill.playback.silhouette import layer_coverage, silhouette_edges
 from neuras_distill.playback.silhouette_strips import TILE_PX, SilhouetteEdges
 from neuras_distill.render.cameras import Cameras, look_at
 from test_two_layer import _sphere, cameras, gl, two_spheres
@@ -36,8 +36,9 @@ def _tiles_and_edges(mesh: MeshData, cams: Cameras, i: int):
     edges = SilhouetteEdges(mesh.vertices, mesh.faces)
     near, far = camera_near_far(mesh_bounds(mesh.vertices), cams, i)
     mask = edges.tiles(cams.c2w[i, :3, 3].double().numpy(), mvp_for(cams, i, near, far), cams.width, cams.height)
-    coverage = rasterize_gbuffer(mesh, cams[i]).coverage[0]
-    return _pixels_of(mask, cams.height, cams.width), silhouette_edges(coverage), coverage
+    gbuffer = rasterize_gbuffer(mesh, cams[i])
+    layers = layer_coverage(gbuffer.face_id[0], mesh.core_faces)      # two layers: the core's seam is an edge
+    return _pixels_of(mask, cams.height, cams.width), silhouette_edges(layers), gbuffer.coverage[0]
 
 
 def test_seams_are_welded_and_a_closed_mesh_has_no_boundary():

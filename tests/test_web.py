@@ -362,7 +362,7 @@ def test_a_shader_that_does_not_compile_fails_with_its_info_log(runs, browser, s
     out = root / "broken"
     export_web(bundle, out)
     frag = out / "shaders" / "mesh1.frag"
-    frag.write_text(frag.read_text().replace("f_color = vec4(rgb, 1.0);", "f_color = vec4(rgb, undefined_name);"))
+    frag.write_text(frag.read_text().replace("f_color = vec4(rgb, ", "f_color = vec4(rgb, undefined_name + "))
     browser.get(f"{base}/broken/index.html?camera=0")
     deadline = time.monotonic() + 60.0
     error = None

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from ..playback.shaders import CORE_VARIANT, SHELL_VARIANT
+from ..playback.silhouette import SHELL_COVERAGE
 
 
 def glsl_float(x: float) -> str:
@@ -205,16 +206,17 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
 
     if model.mesh_layers == 1:
         rgb = _mlp_lines(out, model.shader, in_names, dim, c4, use_dir, "    ")
-        out.append(f"    vec3 rgb = {rgb};")
+        out += [f"    vec3 rgb = {rgb};", "    f_color = vec4(rgb, 1.0);"]
     else:       # a two-layer mesh: one program per layer, MESH_LAYER picks the shader at compile time
         out.append("    vec3 rgb;")
-        for directive, shader in ((f"#if MESH_LAYER == {SHELL_VARIANT}", model.shaders[1]), ("#else", model.shaders[0])):
+        layers = ((f"#if MESH_LAYER == {SHELL_VARIANT}", model.shaders[1], SHELL_COVERAGE),
+                  ("#else", model.shaders[0], 1.0))
+        for directive, shader, coverage in layers:   # alpha: the layer's coverage (playback/silhouette.py)
             out.append(directive)
             rgb = _mlp_lines(out, shader, in_names, dim, c4, use_dir, "    ")
-            out.append(f"    rgb = {rgb};")
+            out += [f"    rgb = {rgb};", f"    f_color = vec4(rgb, {coverage!r});"]
         out.append("#endif")
     out += [
-        "    f_color = vec4(rgb, 1.0);",
         "}",
         "",
     ]

@@ -119,9 +119,10 @@ def gl_torch_parity(model, mesh, cameras: Cameras, gl_image: np.ndarray, backgro
                             world_dirs[torch.from_numpy(missed)])
         reference[missed] = sky.numpy()
     if silhouette_blend:
-        from ..playback.silhouette import blend_silhouettes
+        from ..playback.silhouette import blend_silhouettes, layer_coverage
 
-        reference = blend_silhouettes(reference, gbuffer.coverage[0])
+        reference = blend_silhouettes(reference, layer_coverage(
+            gbuffer.face_id[0], mesh.core_faces if model.mesh_layers == 2 else None))
     return metrics.psnr(gl_image, reference)
 
 

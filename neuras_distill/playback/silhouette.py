@@ -14,7 +14,14 @@ session-7 bundles against the field (same held-out views, 8-bit): NeuS fixture 3
 34.77 -> 36.44 dB (a 3 x 3 box instead: 36.70 / 36.46); the gradient ball, whose fringe shell already fades to
 the background, is unchanged.
 
-Coverage travels in the scene pass's alpha: the mesh shaders write 1, the clear colour and the skybox pass 0.
+Coverage travels in the scene pass's alpha: the mesh shaders write 1, the clear colour and the skybox pass 0,
+and a two-layer mesh's shell (``MeshData.core_faces``) :data:`SHELL_COVERAGE`, so the seam where the opaque core's
+silhouette meets the shell inside the picture is an edge too. That seam is a steep step in the field's colour
+(a ray grazing the core crosses the whole fringe, its neighbour outside the core only the fringe): on the
+from-ngp ball (session 27, held-out 384 x 216) the core's outermost pixel held 22% of the interior's squared
+error at 26.5 dB, and blending the seam alone lifted it to 29.5 dB and the interior 35.91 -> 36.58 dB. A 2 x 2
+block's mean alpha equals 0, :data:`SHELL_COVERAGE` or 1 only when its four pixels are all of one kind
+(0.302 is no mean of four values from {0, 0.302, 1} other than four shells; the nearest, 0.326, is 0.024 off).
 Neighbours outside the image are clamped to it (no edges along the image border).
 
 Owns: the GLSL of the pass (:data:`SILHOUETTE_VERTEX_SHADER`, :data:`SILHOUETTE_FRAGMENT_SHADER`) and its numpy
@@ -25,6 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The alpha a two-layer mesh's shell writes (77 / 255, exact in RGBA8); the core and one-layer meshes write 1.
+SHELL_COVERAGE = 77.0 / 255.0
+
 #: A full-screen triangle (no vertex buffer: ``gl_VertexID`` 0, 1, 2).
 SILHOUETTE_VERTEX_SHADER = """#version 330
 void main() {
@@ -34,15 +44,18 @@ void main() {
 """
 
 SILHOUETTE_FRAGMENT_SHADER = """#version 330
-uniform sampler2D u_scene;  // RGBA8 scene pass, LINEAR filtered: rgb, a = 1 where the mesh drew
+uniform sampler2D u_scene;  // RGBA8 scene pass, LINEAR filtered: rgb, a = coverage (1 mesh or core, 0.302 shell)
 out vec4 f_color;
+bool one_kind(float m) {                     // a 2 x 2 block mean: all empty, all shell or all covered
+    return m < 0.001 || m > 0.999 || abs(m - 0.30196) < 0.01;
+}
 void main() {
     vec2 size = vec2(textureSize(u_scene, 0));
     vec2 p = gl_FragCoord.xy / size;         // this pixel's centre
     vec2 h = 0.5 / size;                     // half a pixel: a LINEAR fetch there is the mean of a 2 x 2 block
     vec4 a = texture(u_scene, p - h);        // the block of this pixel and its left, lower, lower-left ones
     vec4 b = texture(u_scene, p + h);        // ... and its right, upper, upper-right ones
-    if (min(a.a, b.a) > 0.999 || max(a.a, b.a) < 0.001) {
+    if (one_kind(a.a) && one_kind(b.a) && abs(a.a - b.a) < 0.01) {
         f_color = vec4(texture(u_scene, p).rgb, 1.0);
     } else {                                 // an edge: the tent filter [1 2 1] x [1 2 1] / 16
         vec4 c = texture(u_scene, p + vec2(h.x, -h.y));
@@ -66,12 +79,28 @@ def _block_means(x: np.ndarray) -> list[np.ndarray]:
     return [block(1, 0), block(0, 1), block(1, 1), block(0, 0)]
 
 
+def layer_coverage(face_id: np.ndarray, core_faces: int | None) -> np.ndarray:
+    """(H, W) float32 coverage as the mesh shaders write it to alpha: 0 where no face is, 1 on a single-layer
+    mesh or the core, :data:`SHELL_COVERAGE` on the shell (faces ``>= core_faces`` of a two-layer mesh;
+    ``face_id``: (H, W) int, -1 where no face)."""
+    face_id = np.asarray(face_id)
+    cover = (face_id >= 0).astype(np.float32)
+    if core_faces is not None:
+        cover[face_id >= int(core_faces)] = SHELL_COVERAGE
+    return cover
+
+
+def _one_kind(mean: np.ndarray) -> np.ndarray:
+    return (mean < 0.001) | (mean > 0.999) | (np.abs(mean - SHELL_COVERAGE) < 0.01)
+
+
 def silhouette_edges(coverage: np.ndarray) -> np.ndarray:
     """(H, W) bool: pixels whose two diagonal 2 x 2 blocks (with the left and lower, and with the right and upper
-    neighbours; outside the image: edge-clamped) hold both covered and uncovered pixels."""
-    a, b = _block_means(np.asarray(coverage, np.float32))[:2]
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    return ~((lo > 0.999) | (hi < 0.001))
+    neighbours; outside the image: edge-clamped) hold more than one kind of pixel. ``coverage``: (H, W) bool
+    (covered or not) or float32 from :func:`layer_coverage` (empty, shell, core)."""
+    cover = np.asarray(coverage, np.float32)
+    a, b = _block_means(np.round(cover * 255.0) / 255.0)[:2]        # the alpha the RGBA8 scene holds
+    return ~(_one_kind(a) & _one_kind(b) & (np.abs(a - b) < 0.01))
 
 
 def blend_silhouettes(image: np.ndarray, coverage: np.ndarray) -> np.ndarray:
@@ -82,4 +111,5 @@ def blend_silhouettes(image: np.ndarray, coverage: np.ndarray) -> np.ndarray:
     return np.where(silhouette_edges(coverage)[..., None], tent, img).astype(np.float32)
 
 
-__all__ = ["SILHOUETTE_VERTEX_SHADER", "SILHOUETTE_FRAGMENT_SHADER", "silhouette_edges", "blend_silhouettes"]
+__all__ = ["SHELL_COVERAGE", "SILHOUETTE_VERTEX_SHADER", "SILHOUETTE_FRAGMENT_SHADER", "layer_coverage",
+           "silhouette_edges", "blend_silhouettes"]
