@@ -237,6 +237,17 @@ def test_clean_removes_junk(sphere_mesh):
     assert is_watertight(cleaned.faces)
 
 
+def test_face_components_join_faces_that_share_a_vertex():
+    from neuras_distill.geometry.cleanup import face_components
+
+    faces = np.array([[0, 1, 2], [2, 3, 4], [5, 6, 7], [7, 8, 9], [10, 11, 12], [4, 13, 14]])
+    labels = face_components(faces, 16)                    # vertex 15 belongs to no face
+    assert labels.shape == (6,) and labels.dtype == np.int64
+    assert labels[0] == labels[1] == labels[5] and labels[2] == labels[3]
+    assert len({labels[0], labels[2], labels[4]}) == 3
+    assert face_components(np.zeros((0, 3), np.int64), 4).shape == (0,)
+
+
 def test_decimate_reaches_budget_and_stays_close(sphere_mesh):
     field = SphereSDF()
     voxel = sphere_mesh.stats["voxel_size"]
