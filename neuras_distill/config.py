@@ -209,7 +209,7 @@ class TrainConfig:
     used texel of the atlas (``pipeline.decisions.training_steps``), within the time budget; reported in the
     report's ``training_plan``. Configured steps run to the end unless ``time_budget_s`` is set too."""
     time_budget_s: float = 0.0
-    """Stop training after this many seconds. 0 (default): half of the time the run spends volume rendering
+    """Stop training after this many seconds. 0 (default): as long as the run spends volume rendering
     the field (teacher renders plus held-out evaluation, ``decisions.training_time_budget``) and extracting the
     surface (``pipeline.stages.geometry.with_surface_time``)."""
     lr: float = 0.01

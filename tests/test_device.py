@@ -135,6 +135,6 @@ def test_training_plan_floor_and_probe_follow_the_training_device():
     from neuras_distill.pipeline import decisions
     assert decisions.training_time_budget(1.0, 10**6, 10**6) == decisions.TRAIN_FLOOR_S
     assert decisions.training_time_budget(1.0, 10**6, 10**6, floor_s=decisions.GPU_TRAIN_FLOOR_S) == 60.0
-    assert decisions.training_time_budget(100.0, 10**6, 10**6) == pytest.approx(0.5 * 200.0)  # the share wins
+    assert decisions.training_time_budget(100.0, 10**6, 10**6) == pytest.approx(decisions.TRAIN_TIME_FRACTION * 200.0)
     speed = decisions.probe_training_speed(4, 8, 2, 4, 8, steps=5, side=32, device="cpu")
     assert speed > 0
