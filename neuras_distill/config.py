@@ -212,6 +212,10 @@ class TrainConfig:
     """Stop training after this many seconds. 0 (default): as long as the run spends volume rendering
     the field (teacher renders plus held-out evaluation, ``decisions.training_time_budget``) and extracting the
     surface (``pipeline.stages.geometry.with_surface_time``)."""
+    budget_share: float = 0.0
+    """With ``time_budget_s`` 0: training's budget as a share of the time the run spends volume rendering and
+    extracting the surface. 0 (default): ``pipeline.decisions.TRAIN_TIME_FRACTION`` (1.0). The city preset
+    keeps 0.5: twice its training bought nothing there (session 21)."""
     lr: float = 0.01
     """Adam learning rate (NeuRas uses 0.01)."""
     batch_patches: int = 32
@@ -291,6 +295,8 @@ class DistillConfig:
         require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
         require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")
         require(tr.time_budget_s >= 0, f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
+        require(0.0 <= tr.budget_share <= 16.0,
+                f"train.budget_share must be in 0..16 (0: the default share), got {tr.budget_share}")
         require(0.0 <= tr.vq_warmup <= 1.0, f"vq_warmup must be in 0..1 (1: quantize after training), "
                                             f"got {tr.vq_warmup}")
         require((self.eval.width == 0 or self.eval.width >= 16) and self.teacher.train_width >= 16,

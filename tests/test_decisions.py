@@ -72,6 +72,9 @@ def test_the_training_budget_counts_the_surface_extraction():
     assert grown.time_budget_s == 28.0 + TRAIN_TIME_FRACTION * 28.0
     assert grown.max_steps == int(grown.time_budget_s * 95.0) > auto.max_steps and auto.time_budget_s == 28.0
     assert with_surface_time(ctx, auto, None) is auto                  # a surface stored without its timing
+    half = SimpleNamespace(cfg=nd.load_config("fast", overrides={"train": {"budget_share": 0.5}}))
+    assert with_surface_time(half, auto, 28.0).time_budget_s == 28.0 + 0.5 * 28.0      # a configured share
+    assert nd.load_config("city").train.budget_share == 0.5 and TRAIN_TIME_FRACTION == 1.0
     fixed = TrainingPlan(time_budget_s=None, samples_per_step=8192, steps_per_second=None, configured_steps=500,
                          max_steps=500)
     assert with_surface_time(ctx, fixed, 28.0) is fixed

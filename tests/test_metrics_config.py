@@ -91,7 +91,8 @@ def test_skybox_texture_and_eval_settings_are_validated():
                         ({"skybox": {"near": 100.0, "far": 10.0}}, "must nest"),
                         ({"texture": {"resolution": 8}}, "texture resolution"),
                         ({"eval": {"width": 8}}, "at least 16"),
-                        ({"eval": {"max_upscale": -1.0}}, "max_upscale")):
+                        ({"eval": {"max_upscale": -1.0}}, "max_upscale"),
+                        ({"train": {"budget_share": -0.5}}, "budget_share")):
         with pytest.raises(BadInputError, match=needle):
             load_config(overrides=bad)
     from neuras_distill.pipeline.decisions import capped_width

@@ -165,14 +165,14 @@ def _record_surface_source(ctx: RunContext, stats: dict) -> None:
 
 
 def with_surface_time(ctx: RunContext, plan: TrainingPlan, seconds: float | None) -> TrainingPlan:
-    """An automatic plan's time budget grown by ``decisions.TRAIN_TIME_FRACTION`` of the seconds the surface
+    """An automatic plan's time budget grown by its share (``decisions.training_share``) of the seconds the surface
     extraction took (``seconds_surface``, stored with the surface, so a resumed run plans the same), and its
     most steps with it: training's share is then one of the whole run's volume rendering *and* meshing. A
     configured budget or step count is left alone. The gradient ball's budget was 28 s (2607 steps of the 6224
     its atlas asks for) while its surface took 28 s and the run 184 s."""
     if plan.configured_steps or ctx.cfg.train.time_budget_s or not seconds or not plan.steps_per_second:
         return plan
-    budget = float(plan.time_budget_s) + decisions.TRAIN_TIME_FRACTION * float(seconds)
+    budget = float(plan.time_budget_s) + decisions.training_share(ctx.cfg.train.budget_share) * float(seconds)
     return dataclasses.replace(plan, time_budget_s=budget,
                                max_steps=max(decisions.MIN_TRAIN_STEPS, int(budget * plan.steps_per_second)))
 

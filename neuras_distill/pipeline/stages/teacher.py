@@ -122,7 +122,8 @@ def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -
     eval_pixels = int((len(test) + curve + shifts) * test.width * test.height)
     floor = decisions.GPU_TRAIN_FLOOR_S if ctx.device.type == "cuda" else decisions.TRAIN_FLOOR_S
     budget = tr.time_budget_s or decisions.training_time_budget(teacher_seconds, len(train) * train.width * train.height,
-                                                                 eval_pixels, floor_s=floor)
+                                                                 eval_pixels, floor_s=floor,
+                                                                 fraction=decisions.training_share(tr.budget_share))
     if tr.steps:                   # configured steps run to the end unless a time budget is configured too
         return TrainingPlan(time_budget_s=tr.time_budget_s or None, samples_per_step=samples_per_step,
                             steps_per_second=None, configured_steps=tr.steps, max_steps=tr.steps)
