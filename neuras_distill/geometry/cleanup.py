@@ -117,7 +117,6 @@ def clean_mesh(mesh: MeshData, *, min_component_fraction: float = 0.005) -> Mesh
         raise BadInputError("the mesh has no valid faces (all degenerate or with NaN vertices)")
     v, f = _compact(v, f)
     ms = _to_meshset(v, f)
-    del v, f, finite, keep                 # MeshLab holds its own copy; ours would only raise the peak
     ms.meshing_remove_duplicate_vertices()
     ms.meshing_remove_duplicate_faces()
     ms.meshing_remove_null_faces()

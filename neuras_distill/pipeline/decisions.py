@@ -233,6 +233,8 @@ def training_share(configured: float) -> float:
     """Training's share of the run's volume rendering and surface extraction: ``train.budget_share``, or
     :data:`TRAIN_TIME_FRACTION` when that is 0."""
     return float(configured) if configured > 0 else TRAIN_TIME_FRACTION
+
+
 #: Fewest optimisation steps of an automatic plan (the MLP needs some steps whatever the atlas size).
 MIN_TRAIN_STEPS = 1000
 #: Training samples per used texel an automatic plan aims for within its time budget (``SAMPLES_PER_TEXEL``

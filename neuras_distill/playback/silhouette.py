@@ -47,7 +47,7 @@ SILHOUETTE_FRAGMENT_SHADER = """#version 330
 uniform sampler2D u_scene;  // RGBA8 scene pass, LINEAR filtered: rgb, a = coverage (1 mesh or core, 0.302 shell)
 out vec4 f_color;
 bool one_kind(float m) {                     // a 2 x 2 block mean: all empty, all shell or all covered
-    return m < 0.001 || m > 0.999 || abs(m - 0.30196) < 0.01;
+    return m < 0.001 || m > 0.999 || abs(m - SHELL_COVERAGE) < 0.01;
 }
 void main() {
     vec2 size = vec2(textureSize(u_scene, 0));
@@ -63,7 +63,7 @@ void main() {
         f_color = vec4(0.25 * (a.rgb + b.rgb + c.rgb + d.rgb), 1.0);
     }
 }
-"""
+""".replace("SHELL_COVERAGE", f"{SHELL_COVERAGE:.5f}")
 
 
 def _block_means(x: np.ndarray) -> list[np.ndarray]:
