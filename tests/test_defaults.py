@@ -14,7 +14,7 @@ from neuras_distill.neural.train import fit
 CASES = [
     (NeuralTextureModel.__init__, TextureConfig(),
      {"feature_dim": "feature_dim", "num_codes": "num_codes", "hidden": "hidden", "num_layers": "num_layers",
-      "use_vq": "quantize"}),
+      "use_vq": "quantize", "quantize_above": "quantize_above"}),
     (MLPShader.__init__, TextureConfig(), {"hidden": "hidden", "num_layers": "num_layers"}),
     (SkyboxModel.__init__, SkyboxConfig(), {"feature_dim": "feature_dim", "num_codes": "num_codes",
                                             "hidden": "hidden"}),

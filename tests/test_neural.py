@@ -275,7 +275,7 @@ def test_fit_quantizes_after_training_by_default():
     def trained(**kwargs):
         torch.manual_seed(0)
         data = synthetic_gbuffer()
-        model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True)
+        model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True, quantize_above=0)
         log = fit(model, *data, steps=250, batch_patches=8, patch=16, progress=False, num_threads=1, **kwargs)
         return model, log, _psnr(model, *data)
 
@@ -286,9 +286,27 @@ def test_fit_quantizes_after_training_by_default():
     assert 0.2 < log.vq_stats["used_fraction"] <= 1.0 and log.vq_stats["perplexity"] > 10, log.vq_stats
 
 
+def test_fit_keeps_the_texels_exact_when_they_fit_the_index():
+    """After training, k-means runs only when more texels were touched than ``quantize_above``; below it the
+    baked codebook is the texels' own features (the index and codebook give back every texel exactly)."""
+    data = synthetic_gbuffer()
+    exact = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True)
+    log = fit(exact, *data, steps=60, batch_patches=8, patch=16, progress=False, num_threads=1)
+    touched = int(exact.touched.sum())
+    assert 64 < touched <= 1024 and log.exact_codes and log.vq_start_step is None and not exact.quantizing
+    index, codebook = exact.baked_features()
+    assert codebook.shape[0] <= touched and codebook.shape[0] > 64
+    np.testing.assert_array_equal(codebook[index.reshape(-1)], exact.texture.flat.detach().numpy())
+
+    capped = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True, quantize_above=touched - 1)
+    log = fit(capped, *data, steps=60, batch_patches=8, patch=16, progress=False, num_threads=1)
+    assert capped.quantizing and not log.exact_codes and log.vq_start_step == 60
+    assert capped.baked_features()[1].shape[0] <= 64
+
+
 def test_fit_time_budget_and_bad_input():
     data = synthetic_gbuffer(n=1, res=16)
-    model = NeuralTextureModel(16, 16, feature_dim=4, num_codes=16)
+    model = NeuralTextureModel(16, 16, feature_dim=4, num_codes=16, quantize_above=0)
     log = fit(model, *data, steps=100000, time_budget_s=0.5, batch_patches=2, progress=False, num_threads=1)
     assert log.stopped_by == "time_budget" and log.steps < 100000 and model.quantizing
     uv, cov, dirs, tgt = data

@@ -330,8 +330,9 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
     manifest = {
         "texture_width": int(model.tex_width), "texture_height": int(model.tex_height),
         "atlas_pages": int(getattr(model, "pages", 1)),
-        "feature_dim": int(dim), "num_codes": int(k), "num_codes_trained": int(model.num_codes),
-        "use_vq": bool(model.use_vq), "use_viewdir": bool(model.use_viewdir),
+        "feature_dim": int(dim), "num_codes": int(k),
+        "num_codes_trained": int(model.num_codes) if model.quantizing else 0,
+        "use_vq": bool(model.quantizing), "use_viewdir": bool(model.use_viewdir),
         "use_facing": bool(model.use_facing),
         "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
         "shell_mlp_hidden": int(model.shaders[-1].hidden) if model.mesh_layers == 2 else None,
@@ -356,7 +357,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
                                   float16_feature_bytes=float16_feature_nbytes(sky_h, sky_w, skybox.feature_dim))
     manifest.update(extra_manifest or {})
     manifest["core_faces"] = core_faces                 # the mesh's, whatever extra_manifest says
-    if "left_out" in manifest and model.use_vq and k < model.num_codes:     # the bake's own leaving out
+    if "left_out" in manifest and model.quantizing and k < model.num_codes:     # the bake's own leaving out
         manifest["left_out"] = [*manifest["left_out"], {
             "component": "unused codes",
             "reason": f"{model.num_codes - k} of {model.num_codes} codebook entries are used by no texel and "

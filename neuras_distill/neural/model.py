@@ -78,6 +78,8 @@ class NeuralTextureModel(nn.Module):
             shader takes it (the direction columns of ``dirs`` are there either way).
         shell_hidden: with ``mesh_layers=2``, the hidden width of the shell's shader (None or 0: ``hidden``).
             Its fragments are only those outside the core's silhouette, so a wider shell costs little.
+        quantize_above: with use_vq, the most touched texels that stay exact after training instead of being
+            quantized (:meth:`start_vq`); 0: always quantize.
         pages: P atlas pages of ``tex_width`` squared texels stacked along v (``tex_height = P * tex_width``;
             ``geometry.unwrap(page_size=)``): the bilinear lookup stays within a uv's page
             (``texture.bilinear_corners``), as the baked shader's texture-array lookup does.
@@ -88,7 +90,7 @@ class NeuralTextureModel(nn.Module):
                  num_layers: int = _TEXTURE.num_layers, use_viewdir: bool = True, use_vq: bool = _TEXTURE.quantize,
                  sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False,
                  mesh_layers: int = 1, core_viewdir: bool | None = None, shell_hidden: int | None = None,
-                 pages: int = 1) -> None:
+                 pages: int = 1, quantize_above: int = _TEXTURE.quantize_above) -> None:
         super().__init__()
         self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
         self.pages = int(pages)
@@ -110,6 +112,8 @@ class NeuralTextureModel(nn.Module):
                                                use_facing=use_facing)
                                      for layer in range(mesh_layers))
         self.register_buffer("vq_active", torch.tensor(False))
+        self.quantize_above = int(quantize_above)
+        self.register_buffer("vq_skipped", torch.tensor(False))     # start_vq kept the texels exact
         self.register_buffer("touched", torch.zeros(self.tex_height * self.tex_width, dtype=torch.bool),
                              persistent=False)
         self.record_touched = False
@@ -199,11 +203,18 @@ class NeuralTextureModel(nn.Module):
 
     # ------------------------------------------------------------------ training helpers
     @torch.no_grad()
-    def start_vq(self, sample: torch.Tensor | None = None, max_samples: int = 65536) -> None:
+    def start_vq(self, sample: torch.Tensor | None = None, max_samples: int = 65536,
+                 after_training: bool = False) -> None:
         """Switch to quantized features: k-means init of the codebook from ``sample`` (M, D), by default the
-        touched texels (all texels when none were recorded)."""
+        touched texels (all texels when none were recorded). ``after_training`` (the model's last step, with
+        the touched texels of every rank): when at most ``quantize_above`` texels were touched, nothing is
+        quantized: ``vq_skipped`` is set and every texel keeps its own feature (:meth:`baked_features` stores
+        them exactly)."""
         if self.vq is None:
             raise RuntimeError("model was built with use_vq=False")
+        if after_training and sample is None and 0 < int(self.touched.sum()) <= self.quantize_above:
+            self.vq_skipped.fill_(True)
+            return
         if sample is None:
             flat = self.texture.flat.detach()
             sel = torch.nonzero(self.touched).flatten()
@@ -256,7 +267,7 @@ class NeuralTextureModel(nn.Module):
             codebook, remap = self.vq.prune(idx)
             index = remap[idx]
         else:
-            if self.use_vq:
+            if self.use_vq and not bool(self.vq_skipped):
                 raise BadInputError("the model's vector quantizer was never switched on (start_vq); "
                                     "train it with fit() before baking")
             # identical texels (untouched ones filled with their nearest touched feature) share one entry:

@@ -204,7 +204,7 @@ class SkyboxModel(nn.Module):
         self.layers = layers
         h, w = layers.atlas_size
         self.atlas = NeuralTextureModel(h, w, feature_dim=feature_dim, num_codes=num_codes, hidden=1,
-                                        num_layers=1, use_viewdir=False)
+                                        num_layers=1, use_viewdir=False, quantize_above=0)  # sky: always k-means
         self.shader = SkyboxShader(feature_dim, hidden)
 
     @property

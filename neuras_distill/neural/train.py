@@ -63,6 +63,7 @@ class TrainLog:
         stopped_by: "steps" or "time_budget".
         vq_start_step: step at which quantization began (None without VQ).
         vq_stats: final quantizer stats (perplexity, used_fraction, ...), {} without VQ.
+        exact_codes: quantization was skipped: no more texels were touched than ``model.quantize_above``.
         touched_fraction: fraction of texels a training sample touched; filled_texels: texels gutter-filled.
         processes: ranks that trained together (``exchange``); pixels_per_second_per_process: batch pixels
             (patches x patch²) per second of the loop, divided by ``processes``.
@@ -75,6 +76,7 @@ class TrainLog:
     stopped_by: str = "steps"
     vq_start_step: int | None = None
     vq_stats: dict = field(default_factory=dict)
+    exact_codes: bool = False
     touched_fraction: float = 0.0
     filled_texels: int = 0
     sky_touched_fraction: float | None = None
@@ -313,9 +315,10 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         skybox.cpu()
     if model.use_vq and not model.quantizing:      # quantize after training (or the warm-up outlasted the run)
         for m_ in models:
-            m_.start_vq()
-        log.vq_start_step = step
-    if model.vq is not None:
+            m_.start_vq(after_training=True)
+        log.vq_start_step = step if model.quantizing else None
+    log.exact_codes = bool(model.vq_skipped)
+    if model.quantizing:
         log.vq_stats = {**model.vq.stats(), **_texel_code_stats(model)}
     log.touched_fraction = float(model.touched.float().mean())
     log.filled_texels = model.fill_unseen_texels()

@@ -30,7 +30,7 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
                                hidden=t.hidden, num_layers=t.num_layers, use_viewdir=inputs.use_viewdir,
                                use_facing=inputs.use_facing, mesh_layers=len(training.mesh.layers()),
                                core_viewdir=inputs.core_viewdir, shell_hidden=t.shell_hidden, use_vq=t.quantize,
-                               pages=pages)
+                               pages=pages, quantize_above=t.quantize_above)
     skybox = backdrop.skybox
     key = digest("distill", ctx.keys["gbuffer"], ctx.keys["plan"], plan.steps, plan.time_budget_s,
                  settings(cfg.texture), settings(cfg.train, ("checkpoint_every_s",)), settings(cfg.skybox),
@@ -57,5 +57,11 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
     trained.load_into(model, skybox)
     if checkpoint is not None:
         checkpoint.remove()
+    if bool(model.vq_skipped):
+        touched = int(model.touched.sum())
+        ctx.decisions.leave_out("vector quantization", f"the {touched} texels training touched fit the index "
+                                f"texture (at most texture.quantize_above = {t.quantize_above}): each keeps its "
+                                f"own feature, exact, instead of the nearest of {t.num_codes} k-means codes",
+                                touched_texels=touched)
     ctx.clock.done(key=key, **{k: v for k, v in trained.log.items() if k != "entries"})
     return DistilledModel(model, skybox, trained.log)
