@@ -66,7 +66,9 @@ def summary_table(rep: dict) -> str:
     ft = rep["frame_time_ms"]
     ratio = ""
     if rep.get("feature_bytes_vq") and rep.get("feature_bytes_float16"):
-        ratio = f" ({rep['feature_bytes_float16'] / rep['feature_bytes_vq']:.1f}x smaller than float16 features)"
+        factor = rep["feature_bytes_float16"] / rep["feature_bytes_vq"]
+        ratio = (f" ({factor:.1f}x smaller than float16 features)" if factor >= 1.0 else
+                 f" ({1.0 / factor:.1f}x the size of float16 features)")
     rows = [
         ("", "before (field)", "after (bundle)"),
         ("renderer", "volume rendering", "OpenGL rasterization"),
