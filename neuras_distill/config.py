@@ -297,6 +297,8 @@ class DistillConfig:
                 f"texture.normal_smoothing must be in 0..1000 rounds, got {t.normal_smoothing}")
         require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
         require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
+        require(0 <= t.quantize_above <= 65535, f"texture.quantize_above must be in 0..65535 texels (what the uint16 "
+                f"index holds; 0: always k-means), got {t.quantize_above}")
         _require_choice(t.view_dependence, Mode, "view_dependence")
         require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
         require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")

@@ -92,7 +92,8 @@ def test_skybox_texture_and_eval_settings_are_validated():
                         ({"texture": {"resolution": 8}}, "texture resolution"),
                         ({"eval": {"width": 8}}, "at least 16"),
                         ({"eval": {"max_upscale": -1.0}}, "max_upscale"),
-                        ({"train": {"budget_share": -0.5}}, "budget_share")):
+                        ({"train": {"budget_share": -0.5}}, "budget_share"),
+                        ({"texture": {"quantize_above": 70000}}, "quantize_above")):
         with pytest.raises(BadInputError, match=needle):
             load_config(overrides=bad)
     from neuras_distill.pipeline.decisions import capped_width
