@@ -93,6 +93,9 @@ def test_skybox_texture_and_eval_settings_are_validated():
                         ({"eval": {"width": 8}}, "at least 16"),
                         ({"eval": {"max_upscale": -1.0}}, "max_upscale"),
                         ({"train": {"budget_share": -0.5}}, "budget_share"),
+                        ({"train": {"texture_lr_scale": 0.0}}, "texture_lr_scale"),
+                        ({"train": {"lr": float("nan")}}, "train.lr"),
+                        ({"train": {"patch": 0}}, "train.patch"),
                         ({"texture": {"quantize_above": 70000}}, "quantize_above")):
         with pytest.raises(BadInputError, match=needle):
             load_config(overrides=bad)

@@ -45,6 +45,7 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
         tr = cfg.train
         train_fn = fit if ctx.pool is None else ctx.pool.fit      # --nproc N: data-parallel over the workers
         log = train_fn(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, lr=tr.lr,
+                  texture_lr_scale=tr.texture_lr_scale,
                   batch_patches=tr.batch_patches, patch=tr.patch, ssim_weight=tr.ssim_weight,
                   vq_warmup=tr.vq_warmup, time_budget_s=plan.time_budget_s, progress=ctx.progress, seed=tr.seed,
                   skybox=skybox, origins=backdrop.sky_origins, sky_pixels=backdrop.sky_pixels,
