@@ -18,8 +18,8 @@ CASES = [
     (MLPShader.__init__, TextureConfig(), {"hidden": "hidden", "num_layers": "num_layers"}),
     (SkyboxModel.__init__, SkyboxConfig(), {"feature_dim": "feature_dim", "num_codes": "num_codes",
                                             "hidden": "hidden"}),
-    (fit, TrainConfig(), {"lr": "lr", "texture_lr_scale": "texture_lr_scale", "batch_patches": "batch_patches", "patch": "patch",
-                          "ssim_weight": "ssim_weight", "vq_warmup": "vq_warmup", "seed": "seed"}),
+    (fit, TrainConfig(), {"lr": "lr", "texture_lr_scale": "texture_lr_scale", "batch_patches": "batch_patches",
+                          "patch": "patch", "ssim_weight": "ssim_weight", "vq_warmup": "vq_warmup", "seed": "seed"}),
 ]
 
 
