@@ -225,8 +225,8 @@ class TrainConfig:
     lr: float = 0.01
     """Adam learning rate of the shader and codebook (NeuRas uses 0.01)."""
     texture_lr_scale: float = 9.0
-    """The feature atlas learns at this multiple of ``lr`` (its texels see a few samples a step, the shader
-    every sample). Was 3 until session 29: on the Instant-NGP ball (exact codes, 9586 steps, same stored
+    """The feature atlases (the mesh's and the skyboxes') learn at this multiple of ``lr`` (a texel sees a few
+    samples a step, the shader every sample). Was 3 until session 29: on the Instant-NGP ball (exact codes, 9586 steps, same stored
     stages, held out) 3x / 9x / 30x gave 37.47 / 37.71 / 37.30 dB interior."""
     batch_patches: int = 128
     """Patches per step (``batch_patches * patch**2`` pixels: 8192 by default)."""

@@ -101,7 +101,7 @@ def _as_tensor(x, dtype, name: str, shape_tail: tuple, lead: tuple | None = None
 
 
 def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, lr: float = _TRAIN.lr,
-        texture_lr: float | None = None, texture_lr_scale: float = _TRAIN.texture_lr_scale,
+        texture_lr_scale: float = _TRAIN.texture_lr_scale,
         batch_patches: int = _TRAIN.batch_patches, patch: int = _TRAIN.patch,
         ssim_weight: float = _TRAIN.ssim_weight, vq_weight: float = 1.0, vq_warmup: float = _TRAIN.vq_warmup,
         lr_final_ratio: float = 0.1,
@@ -116,8 +116,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         dirs: (N, H, W, C) float32 view inputs, C = ``model.view_columns`` (unit directions, the facing cosine
             when the shader uses it, the mesh layer with two layers: ``neural.model.view_inputs``); targets: (N, H, W, 3) float32 teacher colours.
         steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
-        lr: MLP and codebook learning rate; texture_lr: texture learning rate (default
-            ``texture_lr_scale`` * lr).
+        lr: MLP and codebook learning rate; texture_lr_scale: the atlases (the mesh's and the skyboxes')
+            learn at this multiple of lr.
         batch_patches, patch: patches per step and their side in pixels.
         ssim_weight, vq_weight: loss weights; vq_warmup: fraction of the run before quantization starts
             (1.0: quantize after training).
@@ -175,7 +175,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     dy, dx = torch.meshgrid(torch.arange(p), torch.arange(p), indexing="ij")
     use_ssim = ssim_weight > 0 and p >= 7
     log_every = max(1, steps // 50) if log_every is None else max(1, int(log_every))
-    texture_lr = texture_lr_scale * lr if texture_lr is None else float(texture_lr)
+    texture_lr = texture_lr_scale * lr
 
     tex_params = [model.texture.data]
     dense_groups = [{"params": list(model.shaders.parameters()), "lr": lr}]
