@@ -60,6 +60,11 @@ class TeacherConfig:
     """Width in pixels of the training renders (height follows the cameras' aspect ratio)."""
     precision: str = "fp32"
     """Field evaluation: "fp32", or "fp16" (half hash-grid tables and MLPs, float32 compositing; as Instant-NGP
+    far_steps: int = 512
+    """Samples per ray between the near and far planes of an unbounded field (one trained with scene
+    contraction, as nerfstudio's nerfacto): the ground, buildings and sky beyond the foreground box, spaced
+    linearly near the camera and uniformly in disparity beyond (render/far_region.py). 0 leaves that space to
+    the field's background colour. Fields without a far region ignore it."""
     evaluates). Applies to every field evaluation of the run: the teacher, marching cubes, the "before" renders."""
 
 

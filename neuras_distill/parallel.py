@@ -327,4 +327,4 @@ def renderer_settings(renderer) -> dict:
     occupancy = renderer.occupancy.to("cpu") if renderer.occupancy is not None else None
     return {"num_steps": renderer.num_steps, "chunk": renderer.chunk, "occupancy": occupancy,
             "early_stop": renderer.early_stop, "segment": renderer.segment, "min_weight": renderer.min_weight,
-            "device": "cpu"}
+            "device": "cpu", "far_steps": renderer.far_steps}

@@ -197,6 +197,7 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
         field, cameras = rebuild_inputs(report)
     facts = _facts(report)
     teacher_steps = int(report["teacher_steps"])
+    far_ratio = int(report["config"]["teacher"].get("far_steps", 0)) / teacher_steps
     steps = sorted(set(FIELD_STEPS) | {teacher_steps})
     reference_steps = 2 * max(steps)
 
@@ -245,9 +246,10 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
         for w, h in res:
             cams = test.resized(w, h)
             bar.set_postfix_str(f"{w}x{h}: field reference, {reference_steps} steps")
-            reference = render_reference(field, cams, reference_steps, progress=lambda: bar.update(1))
+            reference = render_reference(field, cams, reference_steps, progress=lambda: bar.update(1),
+                                         far_ratio=far_ratio)
             bar.set_postfix_str(f"{w}x{h}: field at {', '.join(map(str, steps))} steps")
-            here = field_points(field, cams, steps, reference, progress=lambda: bar.update(1))
+            here = field_points(field, cams, steps, reference, progress=lambda: bar.update(1), far_ratio=far_ratio)
             here[steps.index(teacher_steps)]["label"] += " (the teacher's)"
             entries = []
             if default.plain_rgb is not None:

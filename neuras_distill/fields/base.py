@@ -40,6 +40,9 @@ class Field(Protocol):
         background_color: (3,) constant background colour.
         inv_s: float, SDF sharpness (NeuS ``s``), used to turn an SDF into opacity.
         unbounded: bool, content lies outside ``aabb``.
+        far_region: a :class:`~neuras_distill.render.far_region.FarRegion` (near and far planes, world units
+            along unit rays from the camera): a density field trained with scene contraction holds content out
+            to its far plane, which the teacher renders (``teacher.far_steps``) instead of the background.
         cameras: :class:`~neuras_distill.render.cameras.Cameras` the field was trained with.
         surface_level: float, density fields: σ at which the mesh is extracted (default: adaptive level).
         occupancy_grid(resolution): an :class:`~neuras_distill.render.occupancy.OccupancyGrid` over ``aabb``

@@ -15,6 +15,12 @@ This module owns :class:`VolumeRenderer`. It is a fair, good renderer (DESIGN.md
   :meth:`render` returns host numpy, :meth:`time_frames` synchronises the device around each timed frame and
   leaves a warm-up frame untimed on a GPU.
 
+Unbounded fields (a ``far_region``, :class:`~neuras_distill.render.far_region.FarRegion`, on a density field,
+with ``far_steps`` > 0) are rendered as their trainer renders them: each ray also marches the space between its
+near plane and the box (in front) and between the box and its far plane (behind), with ``far_steps`` samples
+spaced as :mod:`~neuras_distill.render.far_region` says; the outputs' ``opacity`` and depths stay the
+foreground box's (as seen through what lies in front of it), ``rgb`` is the whole picture.
+
 Opacity models: density fields use σ at the interval midpoints with α = 1 − exp(−σδ) (stable forms in
 :mod:`~neuras_distill.render.compositing`); SDF fields use the NeuS discrete opacity from the SDF at the
 interval endpoints (``field.inv_s``, or 1000 / (aabb diagonal / √3) if absent) and the colour at the
@@ -39,6 +45,7 @@ import torch
 from ..device import chunk_for_memory, field_device, synchronize
 from ..errors import require
 from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth, transmittance_from_alpha
+from .far_region import FarRegion, march_interval
 from .occupancy import OccupancyGrid, default_inv_s
 
 #: Opacity at which a soft fringe starts (``fringe_depth``; the silhouette band of the metrics starts at 0.02,
@@ -63,11 +70,13 @@ class VolumeRenderer:
         early_stop: a ray stops once its transmittance is below this.
         segment: steps generated per ray per round (between early-termination checks).
         min_weight: samples with a smaller compositing weight get no radiance evaluation.
+        far_steps: samples per ray between the near and far planes of an unbounded density field's
+            ``far_region`` (0: the box only, the far region's colour left to the background).
     """
 
     def __init__(self, field, num_steps: int = 256, chunk: int = 2**15, occupancy="auto",
                  early_stop: float = 1e-4, *, segment: int = 32, min_weight: float = 1e-5,
-                 occupancy_resolution: int = 128, device: torch.device | str | None = None):
+                 occupancy_resolution: int = 128, device: torch.device | str | None = None, far_steps: int = 0):
         require(getattr(field, "kind", None) in ("density", "sdf"),
                 f"cannot volume-render a field of kind {getattr(field, 'kind', None)!r}")
         require(int(num_steps) >= 1, f"num_steps must be >= 1, got {num_steps}")
@@ -93,10 +102,17 @@ class VolumeRenderer:
                 occupancy = OccupancyGrid.from_field(field, occupancy_resolution, step=self.step)
         self.occupancy: OccupancyGrid | None = occupancy.to(self.device) if occupancy is not None else None
         self.stats = {"geometry_points": 0, "radiance_points": 0, "rays": 0}
+        require(int(far_steps) >= 0, f"far_steps must be >= 0, got {far_steps}")
+        self.far_steps = int(far_steps)
+        region = getattr(field, "far_region", None)
+        self.far_region: FarRegion | None = (region if self.far_steps and self.kind == "density"
+                                             and isinstance(region, FarRegion) else None)
+        self.far_step = self.far_region.step(self.far_steps) if self.far_region is not None else 0.0
 
     def __repr__(self) -> str:
+        far = f", far_region={self.far_region}, far_steps={self.far_steps}" if self.far_region is not None else ""
         return (f"VolumeRenderer(kind={self.kind}, num_steps={self.num_steps}, step={self.step:.4g}, "
-                f"occupancy={self.occupancy!r}, early_stop={self.early_stop})")
+                f"occupancy={self.occupancy!r}, early_stop={self.early_stop}{far})")
 
     # ------------------------------------------------------------------ background
     def background(self, dirs: torch.Tensor) -> torch.Tensor:
@@ -133,7 +149,13 @@ class VolumeRenderer:
         out_wt = torch.zeros(n_rays, **on)
         out_w = torch.zeros(n_rays, **on)
         out_half = torch.zeros(n_rays, 2, **on)
-        t_near, t_far, hit = ray_aabb(origins, dirs, self.aabb)
+        region = self.far_region
+        t_near, t_far, hit = ray_aabb(origins, dirs, self.aabb, near=region.near if region is not None else 0.0)
+        if region is not None:      # in front of the box (the whole ray where it misses the box)
+            near = torch.full_like(t_near, region.near)
+            front_rgb = torch.zeros(n_rays, 3, **on)
+            front_end = torch.where(hit, t_near, torch.full_like(t_near, region.far)).clamp(max=region.far)
+            trans0 = self._far_march(origins, dirs, near, front_end, torch.ones(n_rays, **on), front_rgb)
         ids = torch.nonzero(hit).flatten()
         if ids.numel():
             # state of the live rays, compacted whenever some of them finish
@@ -145,7 +167,7 @@ class VolumeRenderer:
             acc_wt = torch.zeros(ids.numel(), **on)
             acc_w = torch.zeros(ids.numel(), **on)
             acc_half = torch.zeros(ids.numel(), 2, **on)
-            trans = torch.ones(ids.numel(), **on)
+            trans = trans0[ids].clone() if region is not None else torch.ones(ids.numel(), **on)
             longest, started = int(n_steps.max()), ids.numel()
             k0 = 0
             while ids.numel():
@@ -165,9 +187,21 @@ class VolumeRenderer:
                 ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w, acc_half = (
                     v[keep] for v in (ids, o, d, t0, dt, n_steps, trans, acc_rgb, acc_wt, acc_w, acc_half))
         depth = torch.where(out_w > 0, out_wt / out_w.clamp(min=1e-12), torch.zeros_like(out_w))
-        rgb = out_rgb + (1.0 - out_w).clamp(min=0.0)[:, None] * self.background(dirs)
+        if region is not None:      # behind the box, then the background behind what is left
+            behind = (trans0 - out_w).clamp(min=0.0)
+            start = torch.maximum(t_far, near)
+            behind = self._far_march(origins, dirs, torch.where(hit, start, near), torch.where(
+                hit, torch.full_like(t_far, region.far), near), behind, front_rgb)
+            rgb = out_rgb + front_rgb + behind[:, None] * self.background(dirs)
+        else:
+            rgb = out_rgb + (1.0 - out_w).clamp(min=0.0)[:, None] * self.background(dirs)
         return {"rgb": rgb.clamp(0.0, 1.0), "depth": depth, "surface_depth": out_half[:, 0],
                 "fringe_depth": out_half[:, 1], "opacity": out_w.clamp(0.0, 1.0)}
+
+    def _far_march(self, o, d, t_a, t_b, trans, acc_rgb) -> torch.Tensor:
+        """:func:`~.far_region.march_interval` over [t_a, t_b] of each ray (N,) with this renderer's settings."""
+        return march_interval(self.field, self.far_region, self.far_step, o, d, t_a, t_b, trans, acc_rgb,
+                              early_stop=self.early_stop, min_weight=self.min_weight, stats=self.stats)
 
     def _steps_this_round(self, started: int, live: int, remaining: int) -> int:
         """Steps per live ray in the next round: ``segment`` while all ``started`` rays of the chunk march, then

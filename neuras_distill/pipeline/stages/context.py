@@ -115,12 +115,13 @@ class RunContext:
 
     @property
     def volume_renderer(self):
-        """The run's teacher :class:`~neuras_distill.render.volume.VolumeRenderer` (``teacher.num_steps``), built
+        """The run's teacher :class:`~neuras_distill.render.volume.VolumeRenderer` (``teacher.num_steps``, ``teacher.far_steps``), built
         once: its occupancy grid samples the field, which the cameras stage's probes and the teacher share."""
         if self._volume_renderer is None:
             from ...render.volume import VolumeRenderer
 
-            self._volume_renderer = VolumeRenderer(self.field, num_steps=self.cfg.teacher.num_steps)
+            self._volume_renderer = VolumeRenderer(self.field, num_steps=self.cfg.teacher.num_steps,
+                                                   far_steps=self.cfg.teacher.far_steps)
         return self._volume_renderer
 
     @property

@@ -78,7 +78,9 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
     # a density field's occupancy grid does not depend on the step count: the curve's renderers reuse the
     # teacher's instead of building their own (for the plain-PyTorch nerfacto field each build cost 23 s)
     grid = teacher.occupancy if ctx.field.kind == "density" and teacher.occupancy is not None else "auto"
-    points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(ctx.field, num_steps=s, occupancy=grid), test,
+    far = cfg.teacher.far_steps / cfg.teacher.num_steps        # the far region's samples scale with the box's
+    points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(ctx.field, num_steps=s, occupancy=grid,
+                                                                far_steps=max(1, round(far * s)) if far else 0), test,
                                        2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
                                        cfg.teacher.num_steps, player)
     lap("error_vs_runtime")
