@@ -33,6 +33,8 @@ def _require_choice(value, choices, name: str) -> None:
 
 @dataclass
 class CameraConfig:
+    """Cameras generated for fields that bring none, the held-out split, and extra training views."""
+
     num_views: int = 48
     """Cameras generated for fields that bring none (an orbit framing the scene)."""
     width: int = 1920
@@ -54,22 +56,26 @@ class CameraConfig:
 
 @dataclass
 class TeacherConfig:
+    """The teacher: the field volume-rendered for every training view (and the "before" renderer)."""
+
     num_steps: int = 256
     """Ray-marching steps across the field's box diagonal (the teacher and the "before" renderer)."""
-    train_width: int = 640
-    """Width in pixels of the training renders (height follows the cameras' aspect ratio)."""
-    precision: str = "fp32"
-    """Field evaluation: "fp32", or "fp16" (half hash-grid tables and MLPs, float32 compositing; as Instant-NGP
     far_steps: int = 512
     """Samples per ray between the near and far planes of an unbounded field (one trained with scene
     contraction, as nerfstudio's nerfacto): the ground, buildings and sky beyond the foreground box, spaced
     linearly near the camera and uniformly in disparity beyond (render/far_region.py). 0 leaves that space to
     the field's background colour. Fields without a far region ignore it."""
+    train_width: int = 640
+    """Width in pixels of the training renders (height follows the cameras' aspect ratio)."""
+    precision: str = "fp32"
+    """Field evaluation: "fp32", or "fp16" (half hash-grid tables and MLPs, float32 compositing; as Instant-NGP
     evaluates). Applies to every field evaluation of the run: the teacher, marching cubes, the "before" renders."""
 
 
 @dataclass
 class GeometryConfig:
+    """The mesh: marching cubes, cleanup, decimation, culling, UV unwrap."""
+
     grid_resolution: int = 192
     """Marching-cubes lattice points along the longest side of the field's box."""
     face_budget: int = 40_000
@@ -85,20 +91,15 @@ class GeometryConfig:
     core_level: CoreLevel = "colour"
     """Where a fringed density field's core mesh sits (with a fringe shell): "colour" (where its opaque training
     rays terminate, ``geometry/colour_level.py``) or "surface" (the field's surface level, where the silhouette
-    is). On the gradient ball at 1920x1080 (session 8) "colour" scored 37.6 dB in the interior against 35.1 and
-    27.6 dB in the silhouette band against 29.5 (FLIP 0.0272 against 0.0291): a texture at the surface level
-    sees the colour through parallax that changes with the view (an oracle texture, the field's exact colour
-    on a sphere, scores ~30 dB at the surface level's radius and ~41 dB at the colour level's), while the
-    shell, which then draws the whole fade, is the coarser layer. The core's shader drops the view direction
-    when the field's own colour does not depend on it (``pipeline.choices.core_view_dependence``)."""
+    is). A texture at the surface level sees the colour through parallax that changes with the view; at the
+    colour level the shell draws the whole fade (docs/decisions.md "Where the colour comes from"). The core's
+    shader drops the view direction when the field's own colour does not depend on it
+    (``pipeline.choices.core_view_dependence``)."""
     shell: ShellSource = "offset"
     """Where the fringe shell around a colour-level core comes from: "offset" (the core pushed out by the
     smallest of a series of distances that encloses the fringe, ``marching.offset_grid``) or "level" (the
-    density's own lower levels, halving until they enclose it; sessions 8-15). A trained NeRF's fringe is
-    speckle and its low levels are fog: the Instant-NGP ball's level shell sat at density / 70 and played as
-    pale faceted shards; its offset shell (7 voxels) is smooth: same stored teacher and 3026 steps, held out
-    at 1920x1080, 33.94 -> 34.08 dB, silhouette band 19.85 -> 20.03, interior 34.53 -> 35.05, holes 0.004% ->
-    0% (FLIP 0.0303 -> 0.0311)."""
+    density's own lower levels, halving until they enclose it). A trained NeRF's fringe is speckle and its low
+    levels are fog, which a level shell draws as pale faceted shards (docs/decisions.md "The shell is the core pushed out")."""
     surface: SurfaceSource = "auto"
     """Where a density field's mesh comes from. "auto": its level set on the marching-cubes grid, meshed again
     from the surface depths fused over the training views when xatlas cannot unwrap that level set (a trained
@@ -114,6 +115,8 @@ class GeometryConfig:
 
 @dataclass
 class TextureConfig:
+    """The neural texture: feature atlas, codebook, MLP shader, and what playback draws."""
+
     resolution: int = 0
     """Side of the square feature atlas in texels. 0 (default): chosen per run from texel density, one texel per
     2 x 2 pixels of the training view that sees it largest (``pipeline.decisions.texel_density_resolution``),
@@ -137,33 +140,27 @@ class TextureConfig:
     num_codes: int = 32768
     """Vector-quantizer codebook size (K); codes never used are dropped at bake time. 32768, not the paper's
     1024: a smooth colour gradient needs finer steps than k-means of fewer codes gives, and a played 1080p view
-    magnifies them (session 15, gradient ball, same stored mesh and 3003 steps, held-out at 1920x1080: interior
-    38.29 dB with 8192 codes, 38.82 with 16384, 39.66 with 32768, 39.34 without VQ; frame time unchanged,
-    bundle 1.02 -> 1.83 MB, k-means +25 s). The index texture stays uint16 (up to 65535 codes); the codebook
-    texture wraps past GL's largest side. Tuning the codebook on the photometric loss with the assignments
-    fixed gained nothing (session 8: 38.6-39.0 against 38.9). docs/decisions.md has the history."""
+    magnifies them (docs/decisions.md "Codebook size"). The index texture is uint16 (up to 65535 codes); the
+    codebook texture wraps past GL's largest side."""
     quantize: bool = True
     """Vector-quantize the atlas (``num_codes``). False stores every distinct texel feature as its own code
     (exact; only when there are at most 65535 of them: the bench's "no VQ" variant)."""
     quantize_above: int = 65535
     """With ``quantize``, k-means runs only when training touched more texels than this; at or below it every
-    trained texel keeps its own feature as its code (exact; the uint16 index holds 65535). On the Instant-NGP
-    ball (63913 touched texels, same stored stages, held out at 384x216) k-means to 32768 codes cost 0.46 dB
-    of the interior (37.19 -> 36.73) and 0.16 dB overall, for a codebook half the size (bundle 3.23 -> 2.23
-    MB), and 40 s of the distill stage. 0: always k-means."""
+    trained texel keeps its own feature as its code (exact; the uint16 index holds 65535), which scores better
+    than k-means at the cost of a larger codebook (docs/decisions.md "k-means only where it compresses").
+    0: always k-means."""
     hidden: int = 16
-    """Hidden units of the MLP shader (NeuRas uses 32; 16 halves the per-pixel cost at ~0.1 dB here)."""
+    """Hidden units of the MLP shader (NeuRas uses 32). 16 keeps a 1080p frame cheap on software OpenGL; 32
+    scores better where the bundle plays on a GPU (the ``quality`` preset; docs/decisions.md "Shader width")."""
     shell_hidden: int = 32
     """Hidden units of the fringe shell's own MLP shader (a two-layer mesh, ``geometry.enclose_fringe``; 0: as
     ``hidden``). The shell draws a soft fringe's whole fade, a function of the view direction, the facing
-    cosine and the colour under it, and only its pixels outside the core's silhouette run it. Session 16,
-    gradient ball held out at 1920x1080 (interior / band / whole view, same stored stages): 16 -> 64 wide on
-    session 15's stages 39.66 / 27.97 / 40.21 -> 39.92 / 29.19 / 41.20 dB; on session 16's (offset shell, 3756
-    steps) 32 wide 40.05 / 28.98 / 41.09 and 64 wide 40.12 / 28.97 / 41.09. Frame time against session 15's
-    16-wide bundle (``benchmarks/playback.py``, one invocation, soft pass): 32 wide +3-5%, 64 wide +12-15%."""
+    cosine and the colour under it, and only its pixels outside the core's silhouette run it
+    (docs/decisions.md "Two layers, a shader each")."""
     num_layers: int = 2
-    """Linear layers of the MLP shader (2: one hidden layer; measured 32.7 dB vs 32.5 dB for 3 layers on the
-    demo, with the bundle ~20 % faster at 1080p on llvmpipe)."""
+    """Linear layers of the MLP shader (2: one hidden layer; a second hidden layer scored no better and costs
+    about a fifth more frame time on software OpenGL)."""
     view_dependence: Mode = "auto"
     """"auto" (measure the field and drop the view direction when colour does not depend on it), "on", "off"."""
     view_threshold: float = 0.01
@@ -172,20 +169,18 @@ class TextureConfig:
     """Rounds of one-ring averaging of the shading normals when the shader takes the facing cosine (a mesh with a
     fringe shell; ``MeshData.normal_smoothing``) and the normals are rough (``decisions.ROUGH_NORMALS_DEG``): a
     fringe fades with the surface's large-scale orientation, while a surface fused from a trained NeRF's depths
-    is bumpy (the Instant-NGP ball's vertex normals were a median 16 degrees off the sphere's). Same stored
-    stages, the Instant-NGP ball held out at 384x216: 0 rounds 35.04 dB (interior 33.60, silhouette band 21.47,
-    FLIP 0.0269), 20 rounds 37.19 (34.30, 24.16, 0.0249), 60 rounds 37.16, 150 rounds 37.13. 0: never."""
+    is bumpy (docs/decisions.md "Smoothed shading normals"). 0: never."""
     soft_silhouettes: Mode = "auto"
     """The soft-silhouette pass (``playback/silhouette.py``): "auto" (when the field's fringe is at least 1.5
-    pixels wide at the playing resolution), "on", "off". Measured with ``benchmarks/playback.py`` (alone, Mesa
-    llvmpipe, 2 cores): NeuS fixture 32.97 -> 37.06 dB, instant-nsr-pl 31.03 -> 33.98, demo 35.30 -> 37.22,
-    street 28.70 -> 28.96; it costs +33% to +60% frame time here (demo 48.5 -> 73.9 ms at 1080p: llvmpipe
-    renders the scene into a texture and runs a second pass), a fraction of a millisecond on a GPU. "off" keeps
-    the frame time."""
+    pixels wide at the playing resolution), "on", "off". It gains 1-4 dB on soft-edged fields and costs a third
+    to two thirds more frame time on software OpenGL, a fraction of a millisecond on a GPU (docs/decisions.md
+    "Soft silhouettes"). "off" keeps the frame time."""
 
 
 @dataclass
 class SkyboxConfig:
+    """Neural skyboxes for what lies beyond the mesh (unbounded scenes)."""
+
     mode: Mode = "auto"
     """"auto" (skyboxes when training rays miss the mesh and the field's background is not one constant
     colour), "on", "off"."""
@@ -203,10 +198,7 @@ class SkyboxConfig:
     """Channels per skybox texel."""
     num_codes: int = 4096
     """Codebook size of the skyboxes (their own codebook, as in the paper). 4096, not 256: a sky is a smooth
-    gradient, and 256 codes mottle it as too few codes did the mesh atlas (session 23, the street, same stored
-    teacher and mesh, held out at 960x540: 29.76 -> 30.02 dB, FLIP 0.0892 -> 0.0882, the pixels off the mesh
-    28.91 -> 29.66 dB; frame time 36.3 -> 36.1 ms; bundle +80 KB). A finer sky atlas gained less (128 texels
-    per face side: 29.87 dB with 256 codes, 29.96 with 4096; 256 texels, 256 codes: 29.88, its sky grainy)."""
+    gradient, which 256 codes mottle (docs/decisions.md "Skyboxes")."""
     hidden: int = 16
     """Hidden units of the skybox MLP."""
     ablation: bool = True
@@ -215,6 +207,8 @@ class SkyboxConfig:
 
 @dataclass
 class TrainConfig:
+    """Fitting the atlas, codebook and shader to the teacher's renders."""
+
     steps: int = 0
     """Optimisation steps. 0 (default): planned per run from what the scene needs, 2048 training samples per
     used texel of the atlas (``pipeline.decisions.training_steps``), within the time budget; reported in the
@@ -226,30 +220,24 @@ class TrainConfig:
     budget_share: float = 0.0
     """With ``time_budget_s`` 0: training's budget as a share of the time the run spends volume rendering and
     extracting the surface. 0 (default): ``pipeline.decisions.TRAIN_TIME_FRACTION`` (1.0). The city preset
-    keeps 0.5: twice its training bought nothing there (session 21)."""
+    keeps 0.5: twice its training bought nothing there."""
     lr: float = 0.01
     """Adam learning rate of the shader and codebook (NeuRas uses 0.01)."""
     texture_lr_scale: float = 9.0
     """The feature atlases (the mesh's and the skyboxes') learn at this multiple of ``lr`` (a texel sees a few
-    samples a step, the shader every sample). Was 3 until session 29: on the Instant-NGP ball (exact codes, 9586 steps, same stored
-    stages, held out) 3x / 9x / 30x gave 37.47 / 37.71 / 37.30 dB interior."""
+    samples a step, the shader every sample; docs/decisions.md "Training batches")."""
     batch_patches: int = 128
     """Patches per step (``batch_patches * patch**2`` pixels: 8192 by default)."""
     patch: int = 8
-    """Patch side in pixels (the SSIM term needs patches of at least 7). 8 x 8 patches, 128 a step, instead of
-    16 x 16, 32 a step (until session 29): the same pixels a step from 4x as many views and places, so a step's
-    gradient is less redundant (a texel covers 2 x 2 pixels of the view that sees it largest). Instant-NGP
-    ball, texture_lr_scale 9, 9586 steps, held out: interior 37.71 -> 37.98 dB (4 x 4 patches, 512 a step:
-    38.13, 15% slower steps)."""
+    """Patch side in pixels (the SSIM term needs patches of at least 7). Small patches draw a step's pixels from
+    many views and places, so its gradient is less redundant (docs/decisions.md "Training batches")."""
     ssim_weight: float = 0.0
     """Weight of the (1 - SSIM) term; the L2 term has weight 1. Off by default: at 0.2 its gradient outweighed
-    the L2 term's by about 100x and training traded colour for structure (desaturated colours). Held-out PSNR
-    with 0 instead of 0.2 (same inputs, benchmarks/vq_schedule.py style): NeuS fixture 32.6 vs 32.0 dB,
-    instant-nsr-pl fixture 30.1 vs 28.9 dB, street (512^2) 27.4 vs 25.2-25.9 dB."""
+    the L2 term's by about 100x and training traded colour for structure (docs/decisions.md "L2 only")."""
     vq_warmup: float = 1.0
     """Fraction of the steps that train continuous features before the features are quantized (k-means
-    initialised codebook, straight-through training after). 1.0: quantize once, after training (measured
-    1.3-1.4 dB better on both SDF fixtures than 0.15; see neural/train.py)."""
+    initialised codebook, straight-through training after). 1.0: quantize once, after training
+    (docs/decisions.md "Quantize after training")."""
     seed: int = 0
     """Random seed for initialisation and batches."""
     checkpoint_every_s: float = 30.0
@@ -259,6 +247,8 @@ class TrainConfig:
 
 @dataclass
 class EvalConfig:
+    """The held-out evaluation: frame size, timing, the error-against-run-time curve."""
+
     width: int = 1920
     """Width of held-out frames for PSNR/SSIM and FPS (height follows the cameras' aspect ratio); 0: the
     cameras' own size."""
@@ -273,6 +263,8 @@ class EvalConfig:
 
 @dataclass
 class DistillConfig:
+    """Every setting of a run, one table per stage (the TOML tables ``[cameras]``, ``[teacher]``, ...)."""
+
     cameras: CameraConfig = field(default_factory=CameraConfig)
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     geometry: GeometryConfig = field(default_factory=GeometryConfig)

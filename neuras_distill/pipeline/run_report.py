@@ -1,10 +1,11 @@
-"""The run's ``report.json`` (the public contract, ``docs/report.md`` and DESIGN's report keys), assembled from
-the stages' results."""
+"""The run's ``report.json`` (its keys are the public contract, docs/contract.md), assembled from the stages'
+results."""
 
 from __future__ import annotations
 
 import platform
 import sys
+import time
 
 import numpy as np
 import torch
@@ -37,6 +38,27 @@ def device_info(gl_info: dict | None, device: torch.device | str = "cpu") -> dic
     return out
 
 
+def code_commit() -> str | None:
+    """The git commit of the package's source (``"<hash>+dirty"`` when tracked files differ from it), or None when
+    the package is not a tracked file of a git checkout (an installed wheel)."""
+    import subprocess
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    try:
+        tracked = subprocess.run(["git", "-C", str(here), "ls-files", "--error-unmatch", Path(__file__).name],
+                                 capture_output=True, timeout=10)
+        head = subprocess.run(["git", "-C", str(here), "rev-parse", "--short=12", "HEAD"],
+                              capture_output=True, text=True, timeout=10)
+        if tracked.returncode != 0 or head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "-C", str(here), "diff", "--quiet", "HEAD", "--"],
+                               capture_output=True, timeout=30).returncode == 1
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head.stdout.strip() + ("+dirty" if dirty else "")
+
+
 def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, inputs: ShaderInputs,
                  plan: TrainingPlan, training: TrainingViews, backdrop: Backdrop, distilled: DistilledModel, bundle: Bundle,
                  ev: Evaluation, *, stability: dict | None, source: dict | None, gl_info: dict | None,
@@ -51,6 +73,8 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
     log = distilled.log
     return {
         "version": __version__,
+        "commit": code_commit(),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "fps_before": fps_before,
         "fps_after": fps_after,
         "speedup": fps_after / fps_before,
