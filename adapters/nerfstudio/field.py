@@ -1,6 +1,6 @@
 """A nerfstudio nerfacto run as a neuras-distill density field, in the user's data frame.
 
-This module owns :class:`NerfstudioField` (the Field contract, DESIGN.md §2): :class:`.nerfacto.NerfactoNetwork`
+This module owns :class:`NerfstudioField` (the Field contract, docs/contract.md): :class:`.nerfacto.NerfactoNetwork`
 evaluated through the dataparser's transform, so the field, its box and the cameras are in the frame of the
 dataset's ``transforms.json`` (metric when the capture was): ``x_ns = scale * (R x + t)`` with ``[R | t]`` and
 ``scale`` from ``dataparser_transforms.json``, directions ``d_ns = R d``, density ``sigma = scale * sigma_ns`` per

@@ -1,4 +1,4 @@
-"""The Field contract (DESIGN.md §2) as a typing Protocol, its validation, and chunked evaluation.
+"""The Field contract (docs/contract.md) as a typing Protocol, its validation, and chunked evaluation.
 
 This module owns:
 
@@ -96,7 +96,7 @@ def check_field(field: Any, *, probe: bool = True) -> None:
 
     for member in ("geometry", "radiance"):
         if not callable(getattr(field, member, None)):
-            raise BadInputError(f"field {name} has no callable '{member}'; see the Field contract (DESIGN.md §2)")
+            raise BadInputError(f"field {name} has no callable '{member}'; see the Field contract in docs/contract.md")
 
     bg = getattr(field, "background", None)
     if bg is not None and not callable(bg):

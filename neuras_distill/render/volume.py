@@ -1,6 +1,6 @@
 """The volume renderer of a field: the distillation teacher and the "before" side of the speed comparison.
 
-This module owns :class:`VolumeRenderer`. It is a fair, good renderer (DESIGN.md §3, decision 6):
+This module owns :class:`VolumeRenderer`. It is a fair, good renderer (docs/decisions.md "A fair before"):
 
 * rays are clipped to the field's aabb with a robust slab test (:func:`~neuras_distill.render.rays.ray_aabb`);
 * uniform marching with ``num_steps`` steps across the aabb diagonal (step = diagonal / num_steps; each
