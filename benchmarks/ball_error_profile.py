@@ -5,7 +5,7 @@ the bundle at the held-out cameras (``cameras.json``), compares it with the fiel
 stored (``work/field_views``), and prints per bin of p (the ray's closest distance to the centre, world units)
 the pixel count, PSNR and share of the squared error; with ``--train`` the same at the training cameras
 against the teacher's renders (``work/teacher``), which tells a representation limit (poor on training views
-too) from a generalisation gap. Session 16 used it to find that the gradient ball's interior figure was the
+too) from a generalisation gap. It showed that the gradient ball's remaining interior error is the
 core's grazing rim (p 0.46-0.477) and the band the shell's first ring (docs/decisions.md).
 
 Usage: python benchmarks/ball_error_profile.py RUN_FOLDER [--center X,Y,Z] [--train]

@@ -1,8 +1,8 @@
-"""Run the issue-14 scenes end to end on one device and print one table (wall time per stage, FPS, PSNR).
+"""Run the demo, the Instant-NGP ball and the street end to end on one device and print one table (wall time per stage, FPS, PSNR).
 
-    python benchmarks/device_runs.py --device cuda --out /tmp/cuda_runs [--scenes demo,ngp-ball,street]
-    python benchmarks/device_runs.py --device cpu  --out /tmp/cpu_runs  --scenes demo
-    python benchmarks/device_runs.py --device cuda --out /tmp/cuda_fp16 --scenes demo -- --precision fp16
+    python benchmarks/device_runs.py --device cuda --out runs/cuda [--scenes demo,ngp-ball,street]
+    python benchmarks/device_runs.py --device cpu  --out runs/cpu  --scenes demo
+    python benchmarks/device_runs.py --device cuda --out runs/cuda_fp16 --scenes demo -- --precision fp16
 
 Each scene is the command a user types (``neuras-distill demo``, ``from-ngp tests/data/ngp/ball.ingp``,
 ``from-synthetic street``, ``from-synthetic city``) with ``--device`` and held-out frames 1920 pixels wide
@@ -51,7 +51,7 @@ def run_scene(name: str, device: str, out: Path, eval_width: int, extra: list[st
 
 
 def summary_row(result: dict) -> dict:
-    """The figures issue 14 asks for, from one run's report."""
+    """The stage times, frame times, speedup and scores of one run's report."""
     if result["rc"] != 0:
         return {"scene": result["scene"], "rc": result["rc"], "wall_s": round(result["wall_s"], 1)}
     r = result["report"]

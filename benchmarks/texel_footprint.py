@@ -1,6 +1,6 @@
 """Where a run's held-out error sits against the atlas's texel footprint: what a feature pyramid could buy.
 
-A mipmapped neural texture (issue 10, item 5) changes only the pixels where the atlas is *minified*: a pixel
+A mipmapped neural texture changes only the pixels where the atlas is *minified*: a pixel
 covering more than one texel (GL's level of detail ``lambda = log2(max(|d(uv)/dx|, |d(uv)/dy|) * texels) > 0``)
 would read a coarser level. Pixels where the atlas is magnified (``lambda < 0``: the demo's 256² atlas from
 640x360 training views played at 1920x1080) read level 0 with or without a pyramid; their blur is the atlas's

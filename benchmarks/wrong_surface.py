@@ -5,8 +5,8 @@ field's SDF along every held-out pixel (the run's ``cameras.json``), casts the s
 mesh (open3d), and calls a pixel wrong where the two depths differ by more than ``--tolerance`` (relative) or
 one of them hits nothing. With the run's side-by-side images (``views/view_NN.png``: field | bundle | ...) it
 splits the squared error between wrong-surface and right-surface pixels: if the wrong ones carry most of it,
-the mesh is what holds the run back, otherwise the texture is. Session 21 found the city's decimation this way
-(docs/decisions.md, "The planar quadric's weight").
+the mesh is what holds the run back, otherwise the texture is. The city's decimation was found this way
+(docs/decisions.md, "Cleanup and decimation").
 
 Usage: python benchmarks/wrong_surface.py RUN_FOLDER --scene city [--tolerance 0.03] [--max-views 16]
 Prints one line per held-out view and a final JSON line. About 10 s per 640x360 view of the city on 2 cores.

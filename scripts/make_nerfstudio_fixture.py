@@ -15,7 +15,7 @@ is trained here on rays
 of the embedded bunny's renders with stratified samples inside the bunny's box, volume-rendered with nerfstudio's
 own ``RaySamples.get_weights``, L2 against the renders (white background, the config's ``background_color``)
 plus nerfacto's distortion loss (nerfstudio's ``distortion_loss``, weight 0.002 as nerfacto's default: without it
-the 1200-step fixture of session 17 was a fog around the bunny, 22-24 dB against the scene; with it and 3000
+a 1200-step fixture was a fog around the bunny, 22-24 dB against the scene; with it and 3000
 steps, 27-29 dB and a surface),
 Adam as nerfacto's ``fields`` optimizer (lr 1e-2, eps 1e-15; its learning rates are stored as ``numpy.float64``
 as nerfstudio's scheduler leaves them, so the checkpoint has the numpy pickle globals real ones have). The

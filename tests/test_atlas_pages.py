@@ -1,4 +1,4 @@
-"""Atlas pages (issue 15, docs/architecture.md "Atlas pages"): an atlas side above ``texture.page_size`` is
+"""Atlas pages (docs/architecture.md "Atlas pages"): an atlas side above ``texture.page_size`` is
 packed into square pages stacked along v, trained as one atlas whose bilinear lookups stay within a page, and
 played as a texture array by every player."""
 

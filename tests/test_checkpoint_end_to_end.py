@@ -1,7 +1,7 @@
 """The trained checkpoint fixtures (tests/data) end to end through the CLI: from-ngp on an Instant-NGP
 snapshot with its own stored cameras, from-sdf on a NeuS checkpoint with its cameras_sphere.npz.
 
-Small settings (the fast preset, fewer steps); the full-size figures are in the README and the issue notes.
+Small settings (the fast preset, fewer steps); the full-size figures are in docs/results.md.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def test_from_ngp_on_the_trained_snapshot(tmp_path):
     # the snapshot stores 48 training cameras (192x108); every 12th is held out
     assert rep["views"]["test"] == 4 and rep["resolution"] == [128, 72]
     assert rep["views"]["cameras"] == "the field's own"        # the snapshot's stored cameras
-    assert rep["psnr"] > 20.0, rep["psnr_per_view"]  # tiny settings; full size: 30+ dB (README)
+    assert rep["psnr"] > 20.0, rep["psnr_per_view"]  # tiny settings; full size: 30+ dB (docs/results.md)
     assert rep["parity_psnr"] > 40.0
     assert any(item["component"] == "skyboxes" for item in rep["left_out"])
     # the mesh is in the transforms.json (world) frame: the bunny scene stands on z = 0, about 1 unit tall

@@ -1,5 +1,5 @@
 """Defaults live in one place (config.py): the library's own defaults must be the configuration's, so a function
-called without the configuration behaves like the pipeline (issue 17; nerfstudio #3238 is this bug)."""
+called without the configuration behaves like the pipeline (nerfstudio #3238 is this bug)."""
 
 import inspect
 

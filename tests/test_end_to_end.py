@@ -123,7 +123,7 @@ def test_stiff_field_raises_the_teacher_steps_before_rendering():
     assert stab["verdict"] == "adapted"
     assert stab["applied"]["teacher.num_steps"] == [before, cfg.teacher.num_steps]
     assert cfg.teacher.num_steps >= 1024 > before
-    # thinner than a voxel even at the largest grid: meshed from the teacher's surface depths (session 11), so no
+    # thinner than a voxel even at the largest grid: meshed from the teacher's surface depths, so no
     # grid is recommended and the chosen one is kept
     assert stab["applied"]["geometry.surface"] == ["auto", "depths"] and cfg.geometry.surface == "depths"
     assert cfg.geometry.grid_resolution == 48 and "geometry.grid_resolution" not in stab["not_applied"]
@@ -152,9 +152,7 @@ def test_soft_fringe_gets_a_shell_and_the_facing_input(two_torch_threads):
     opaque pixels, the shader gets |n . d| (and the shell's shader the view direction; the core's drops it, the
     ball being matte), the bundle plays what torch computes, and against the single mesh at the surface level
     (same tiny settings; both play with the soft-silhouette pass, which recovers part of the fringe on its
-    own) the interior gains most, the core sitting where the colour comes from (session 8: interior 28.6 ->
-    34.3 dB, band 21.8 -> 22.6 dB, overall 32.7 -> 34.8 dB; session 7, core at the surface level: band 21.9
-    -> 23.3 dB)."""
+    own) the interior gains most, the core sitting where the colour comes from (docs/decisions.md "Where the colour comes from")."""
     field = nd.make_scene("gradient-ball")
     cams = field.default_cameras(24, 256, 144, held_out_every=6)     # the fast preset holds out every 6th
     base = {"train": {"steps": 800}, "eval": {"width": 256, "fps_frames": 3}, "teacher": {"train_width": 256},
@@ -168,7 +166,7 @@ def test_soft_fringe_gets_a_shell_and_the_facing_input(two_torch_threads):
     assert stats["mc_fringe_missed_at_surface"] > 0.02 >= stats["mc_fringe_missed"]
     assert stats["mc_shell_from"] == "offsets of the core" and stats["mc_fringe_offset_voxels"] >= 1
     # two layers: the core at the colour level, the shell only draws outside the core's silhouette, so the
-    # interior is not learnt through the fringe (session 5's single shell lost interior PSNR to patches)
+    # interior is not learnt through the fringe (a single shell loses interior PSNR to patches)
     assert runs["on"].bundle.mesh.core_faces is not None and stats["shell_faces"] > 0
     assert stats["mc_colour_level_used"] and stats["mc_colour_level"] > 2.0 * field.surface_level
     assert on["psnr_interior"] > off["psnr_interior"] + 3.0, (on["psnr_interior"], off["psnr_interior"])

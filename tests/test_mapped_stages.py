@@ -1,5 +1,5 @@
 """Large per-pixel stages (G-buffers, teacher renders, the shader's view inputs) are written to the work area view by
-view and used memory-mapped, not held whole in memory (issue 15)."""
+view and used memory-mapped, not held whole in memory."""
 
 from __future__ import annotations
 

@@ -40,7 +40,7 @@ def test_presets_only_override():
     assert fast.train.lr == base.train.lr  # not mentioned in the preset: the default stands
     assert set(preset_names()) >= {"object", "fast", "quality"}
     assert load_config("object") == base
-    quality = load_config("quality")        # session 30: the width that pays on GPUs, training planned from texels
+    quality = load_config("quality")        # the width that pays on GPUs, training planned from texels
     assert (quality.texture.hidden, quality.train.steps) == (32, 0) and base.texture.hidden == 16
 
 

@@ -19,7 +19,7 @@ Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature
     sky_index.png        only with skyboxes: 16-bit PNG of the skybox atlas's code indices
     sky_codebook.npy     only with skyboxes: float32 (K_sky, ceil(D/4), 4)
     sky.frag             only with skyboxes: the skybox pass's fragment shader (``bake/glsl_sky.py``)
-    plain_rgb.png        optional (runs since session 8 write it): 8-bit RGB PNG, (H, W) of the feature atlas,
+    plain_rgb.png        optional (every run writes it): 8-bit RGB PNG, (H, W) of the feature atlas,
                          the plain texture (``bake/plain_texture.py``: the model once per texel, gutters padded),
                          values as displayed (sRGB as stored), row 0 = v = 0 like the index map; what the glTF
                          export (``bake/gltf.py``) hands other engines as base colour. Never bound by the player.
@@ -99,7 +99,7 @@ class Bundle:
             ``textures`` has no ``u_sky_*`` entries and ``manifest`` no ``skybox``).
         plain_rgb: optional uint8 (H, W, 3) plain RGB texture over the mesh's UVs (row 0 = v = 0), saved as
             plain_rgb.png; not a sampler of the fragment shader (so not in ``textures``). None: not baked
-            (bundles from before session 8).
+            (older bundles).
 
     Encoding (the files' bytes, ``_encode``) is done once and kept: :meth:`save`, :meth:`nbytes_on_disk` and
     :meth:`feature_nbytes` share it. The kept bytes carry a fingerprint of everything they are made from (a

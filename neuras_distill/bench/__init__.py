@@ -1,4 +1,4 @@
-"""``neuras-distill bench RUN_DIR``: error against run time for one run (issue 13).
+"""``neuras-distill bench RUN_DIR``: error against run time for one run.
 
 * :mod:`.variants`: the bundle variants (atlas side, MLP size and depth, no view input, no VQ, face budget) as
   config changes of the run's own configuration;

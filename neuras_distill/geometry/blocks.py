@@ -2,7 +2,7 @@
 
 A 0.6 km city at 0.29 m voxels is a 2048 x 478 x 230 lattice: 225 M points, 900 MB as float32, and meshing it
 in one piece held the grid, its cavity fill, its padded copy and scikit-image's own arrays at once (4172 MB
-peak, session 20). Here the lattice is sampled one block of x slices at a time (plus the next block's first
+peak). Here the lattice is sampled one block of x slices at a time (plus the next block's first
 slice), each block is padded on the sides the lattice's box closes (y and z always, x at the first and last
 block) and meshed alone, and the blocks' vertices on their shared slices are welded. Every cube of the lattice is
 meshed by exactly one block and a vertex on a shared slice is interpolated from the same two lattice values in

@@ -62,7 +62,7 @@ def face_components(faces: np.ndarray, num_vertices: int) -> np.ndarray:
 
     The graph is the vertices' (two edges per face join its three corners; labels are those of each face's
     first vertex): 2F entries, where the face-vertex bipartite graph it replaced held 6F in a matrix of F + V
-    rows built through a COO copy (session 27: that transient set the cleanup's peak on large meshes)."""
+    rows built through a COO copy (a transient that would set the cleanup's peak on large meshes)."""
     f = faces.shape[0]
     if f == 0:
         return np.zeros(0, dtype=np.int64)
@@ -182,7 +182,7 @@ PLANAR_WEIGHT = 1e-3
 #: does not shrink with the faces as the geometric quadric's does: on the 1.2 km city (marching-cubes edges
 #: 1/1872 of the frame) at 1e-3 it flattened cars, trees, curbs and roof edges, 19.3% of held-out pixels then
 #: saw the wrong surface against 4.6% for the undecimated mesh; the same weight with the mesh scaled 10x, or a
-#: weight of 3e-5, gave 4.6-4.9% (session 21). Every other preset keeps 1e-3 (the street's marching-cubes edges
+#: weight of 3e-5, gave 4.6-4.9%. Every other preset keeps 1e-3 (the street's marching-cubes edges
 #: are 1/373 of its box, the quality preset's 1/298; the city's get 4.6e-5).
 PLANAR_REF_EDGES = 400.0
 

@@ -171,7 +171,7 @@ def unit_frame(positions: np.ndarray) -> tuple[np.ndarray, float]:
     or far from the origin (a 1 mm sphere collapsed inwards in the quadric collapse, |r/R - 1| = 0.87, and
     came back from xatlas as an empty atlas), and the identity (zeros, 1.0) for ordinary meshes, whose results
     then stay exactly what they were (rescaling them changes which edges collapse first and how charts grow:
-    the soft-fringe case's silhouette band lost 0.24 dB, session 12)."""
+    the soft-fringe case's silhouette band lost 0.24 dB)."""
     positions = np.asarray(positions, dtype=np.float64)
     lo, hi = positions.min(axis=0), positions.max(axis=0)
     centre, size = 0.5 * (lo + hi), float((hi - lo).max())

@@ -221,11 +221,10 @@ def training_budget_resolution(samples: int, uv_area: float, *, per_texel: int =
 
 
 #: Share of the rest of the run (teacher renders and held-out evaluation, both volume rendering) that training
-#: may take. Training used 17 s of a 13-minute from-ngp run before (evaluation took 505 s) while its atlas
-#: was capped for lack of training samples. 0.5 until session 27, when the street (the only fixture far short
-#: of its samples per texel: 6765 of 19852 steps in its 132 s) scored 29.73 dB with them and 30.31 with twice
-#: as many (same stored stages; FLIP 0.0925 -> 0.0804, interior 29.84 -> 30.92); the demo and the from-ngp
-#: ball reach their samples per texel within either budget and do not change.
+#: may take. The whole of it, not half: the street (the only fixture far short of its samples per texel at
+#: half, 6765 of 19852 steps in 132 s) scored 29.73 dB with half and 30.31 with the whole (same stored stages;
+#: FLIP 0.0925 -> 0.0804, interior 29.84 -> 30.92); the demo and the from-ngp ball reach their samples per
+#: texel within either budget. The city preset keeps half (``train.budget_share``).
 TRAIN_TIME_FRACTION = 1.0
 
 
@@ -240,7 +239,7 @@ MIN_TRAIN_STEPS = 1000
 #: Training samples per used texel an automatic plan aims for within its time budget (``SAMPLES_PER_TEXEL``
 #: is the least the atlas size allows). More kept paying off: on the instant-nsr-pl fixture at 384^2,
 #: 1500 / 3000 / 5000 steps (about 330 / 660 / 1100 samples per used texel) gave ~29 / 30.1 / 30.7 dB.
-#: 1024 -> 2048 (session 28, with exact codes for small atlases, same stored stages, held out): demo 38.33 ->
+#: 2048, not 1024 (with exact codes for small atlases, same stored stages, held out): demo 38.33 ->
 #: 38.83 dB (6428 steps, the budget's), from-ngp ball 39.33 -> 39.54 (interior 37.04 -> 37.47), NeuS 37.63 ->
 #: 38.00, instant-nsr-pl 34.10 -> 34.42 (11787 steps, the budget's); the gradient ball and the street were
 #: already at their budgets. The time budget still caps it (the demo's run +11 s, NeuS +80 s).
@@ -314,7 +313,7 @@ FRINGE_MIN_PIXELS = 8.0
 #: threshold scales with the training views' width, so a teacher held at 2 x a small dataset's width
 #: (:data:`MAX_UPSCALE`) decides as at 640. The from-ngp ball's 192-pixel cameras (teacher at 384): a 5.6 px
 #: fringe, 9.3 px at 640; judged unscaled, its shell was left out and held-out PSNR at 1080p fell from 34.4 to
-#: 30.8 dB (H200, session 22).
+#: 30.8 dB (on an H200).
 FRINGE_REFERENCE_WIDTH = 640
 
 #: The soft-silhouette pass (``playback/silhouette.py``) runs when the field's fringe is at least this many

@@ -1,8 +1,8 @@
 """Deferred playback for rasterizing GPUs: a visibility buffer, then the bundle's shaders in compute passes.
 
 Why: on NVIDIA's data-centre GPUs (H100, H200) the raster pipeline's fixed-function back end is a small part of
-the chip, while compute runs on all of it. Measured on an H100 (session 24, GL timer queries, the demo bundle at
-1920 x 1080, its mesh covering 20% of the frame; ``.dev24/probe.py``): clearing an RGBA8 colour and a depth
+the chip, while compute runs on all of it. Measured on an H100 (GL timer queries, the demo bundle at
+1920 x 1080, its mesh covering 20% of the frame): clearing an RGBA8 colour and a depth
 buffer 0.26 ms; the mesh pass with the neural shader 0.69 ms (0.41 with a constant-colour shader, 0.58 with
 the feature lookups and no MLP); the same shading as a compute shader 0.022 ms, bit-identical; the
 soft-silhouette pass 0.32 ms as a fragment pass over the mesh's screen box, 0.018 ms as a compute pass over the

@@ -10,7 +10,7 @@ neighbourhood; all other pixels pass through. The GLSL reads LINEAR-filtered 2 x
 for the test, two more on edges). ``BundleRenderer`` runs it only on the screen tiles along the mesh's silhouette
 and boundary edges (``silhouette_strips.py``; the mesh's screen box for a wrinkled surface with thousands of
 them); the web player runs it over the box. Both give the same picture. Measured on
-session-7 bundles against the field (same held-out views, 8-bit): NeuS fixture 32.96 -> 37.01 dB, demo
+bundles against the field (same held-out views, 8-bit): NeuS fixture 32.96 -> 37.01 dB, demo
 34.77 -> 36.44 dB (a 3 x 3 box instead: 36.70 / 36.46); the gradient ball, whose fringe shell already fades to
 the background, is unchanged.
 
@@ -18,7 +18,7 @@ Coverage travels in the scene pass's alpha: the mesh shaders write 1, the clear 
 and a two-layer mesh's shell (``MeshData.core_faces``) :data:`SHELL_COVERAGE`, so the seam where the opaque core's
 silhouette meets the shell inside the picture is an edge too. That seam is a steep step in the field's colour
 (a ray grazing the core crosses the whole fringe, its neighbour outside the core only the fringe): on the
-from-ngp ball (session 27, held-out 384 x 216) the core's outermost pixel held 22% of the interior's squared
+from-ngp ball (held-out 384 x 216) the core's outermost pixel held 22% of the interior's squared
 error at 26.5 dB, and blending the seam alone lifted it to 29.5 dB and the interior 35.91 -> 36.58 dB. A 2 x 2
 block's mean alpha equals 0, :data:`SHELL_COVERAGE` or 1 only when its four pixels are all of one kind
 (0.302 is no mean of four values from {0, 0.302, 1} other than four shells; the nearest, 0.326, is 0.024 off).

@@ -5,7 +5,7 @@ Owns: :data:`VIEW_MODES`, :func:`mode_bundle` and the two diagnostic fragment sh
 ``BundleRenderer`` plays all of them the same way:
 
 * ``neural``: the bundle itself (what every other player plays).
-* ``plain``: the plain baked RGB texture (``bake/plain_texture.py``; bundles from session 8 on store it as
+* ``plain``: the plain baked RGB texture (``bake/plain_texture.py``; bundles store it as
   plain_rgb.png), bilinear, with the skybox pass kept (the sky is not on the mesh).
 * ``uv``: the UV atlas: red/green = (u, v), overlaid with a 64 x 64 checker, so chart borders show as jumps of
   colour or of the checker's phase, and texel density as the checker's size on screen.
@@ -86,7 +86,7 @@ def mode_bundle(bundle, mode: str):
 
         if bundle.plain_rgb is None:
             raise BadInputError("this bundle has no plain texture (plain_rgb.png): re-run the pipeline to bake "
-                                "one (runs before session 8 did not)")
+                                "one (bundles baked by older versions have none)")
         plain = plain_bundle(bundle, bundle.plain_rgb.astype(np.float32) / 255.0)
         if not bundle.has_skybox:
             return plain

@@ -2,7 +2,7 @@
 
 A bundle is played from wherever its user moves, while a capture's cameras sample a path (an orbit, a helix).
 Off that path the bundle's error grows fast although the field itself changes little: on the Instant-NGP ball
-fixture (session 25, one bundle, training cameras turned about the ball's centre) the interior scored 40.7 dB
+fixture (one bundle, training cameras turned about the ball's centre) the interior scored 40.7 dB
 at the training cameras, 39.1 turned by 3 degrees, 36.4 by 7 and 33.5 by 12; its held-out cameras sit 6.5-8.5
 degrees from the nearest training camera. The field can render any view, so the run adds views between and
 around the training cameras: each a training camera turned about its look-at point (its median first-hit
