@@ -158,6 +158,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "`python -m http.server` inside the folder, index.html?camera=N plays held-out camera N)")
     p.add_argument("--out", required=True, help="output file or folder (gltf: a .glb path; web: a folder); an "
                                                 "existing one is replaced only when neuras-distill wrote it")
+    p.add_argument("--max-texture-size", default=None, metavar="N",
+                   help="largest texture side the export writes, in texels (default 4096, a side WebGL2 browsers "
+                        "hold in practice): a codebook is wrapped into more codes per row to fit; an atlas page above "
+                        "it exits 2 (bake with a smaller texture.page_size, or raise N for a target that holds it)")
     return parser
 
 
@@ -408,10 +412,22 @@ def _view(args) -> int:
     return 0
 
 
+def _max_texture_size(args) -> int:
+    """``export --max-texture-size`` as a positive int (``bake/texture_limit.py``'s default when not given)."""
+    from .bake.texture_limit import DEFAULT_MAX_TEXTURE_SIZE
+    from .errors import require
+
+    if args.max_texture_size is None:
+        return DEFAULT_MAX_TEXTURE_SIZE
+    n = _int(args.max_texture_size, "--max-texture-size")
+    require(n >= 1, f"--max-texture-size must be at least 1 texel, got {n}")
+    return n
+
+
 def _export_gltf(args) -> int:
     from .bake.gltf import export_gltf
 
-    out = export_gltf(args.bundle, args.out)
+    out = export_gltf(args.bundle, args.out, _max_texture_size(args))
     print(f"wrote {out} ({out.stat().st_size} bytes)")
     return 0
 
@@ -419,7 +435,7 @@ def _export_gltf(args) -> int:
 def _export_web(args) -> int:
     from .bake.web import export_web
 
-    out = export_web(args.bundle, args.out)
+    out = export_web(args.bundle, args.out, _max_texture_size(args))
     print(f"wrote {out} (serve it with `python -m http.server` inside it, open index.html)")
     return 0
 

@@ -226,6 +226,35 @@ def test_an_atlas_in_pages_is_one_material_per_page(tmp_path):
     assert len(scene.geometry) == 2
 
 
+def _image_sizes(glb: Path) -> list[tuple[int, int]]:
+    """(width, height) of every image of a GLB."""
+    doc, body = _glb_json(glb)
+    views = [doc["bufferViews"][image["bufferView"]] for image in doc["images"]]
+    return [Image.open(io.BytesIO(body[v["byteOffset"]:v["byteOffset"] + v["byteLength"]])).size for v in views]
+
+
+def test_every_image_obeys_the_texture_limit_or_nothing_is_written(tmp_path, capsys):
+    """Default 4096 texels a side; ``--max-texture-size N`` for other targets. A plain texture (or page) above the
+    limit cannot be cut without unwrapping again: exit 2 naming it, its size, the limit and the fix."""
+    single, paged = small_bundle(tmp_path, "single", "s"), small_bundle(tmp_path, "paged", "p")
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    assert main(["export", str(single), "--format", "gltf", "--out", str(out_dir / "s.glb")]) == 0
+    assert _image_sizes(out_dir / "s.glb") == [(8, 6)]                 # within the default 4096
+    for folder, limit, words in [
+            (single, "7", "texture plain_rgb is 8x6, above the export's limit of 7 texels per side: bake it with "
+                          "texture.page_size 7 or less, or export with --max-texture-size 8 "),
+            (paged, "7", "texture plain_rgb is 8x8 per page (2 pages), above the export's limit of 7 texels"),
+            (paged, "-1", "--max-texture-size must be at least 1")]:
+        rc, err = main(["export", str(folder), "--format", "gltf", "--out", str(out_dir / "p.glb"),
+                        "--max-texture-size", limit]), capsys.readouterr().err
+        assert rc == 2 and words in _one_line(err), err
+    assert sorted(p.name for p in out_dir.iterdir()) == ["s.glb"]        # nothing written, no temporary left
+    assert main(["export", str(paged), "--format", "gltf", "--out", str(out_dir / "p.glb"),
+                 "--max-texture-size", "8"]) == 0
+    assert _image_sizes(out_dir / "p.glb") == [(8, 8), (8, 8)]          # one image per page, each at the limit
+
+
 def test_the_base_colour_is_the_stored_plain_texture(tmp_path):
     folder = small_bundle(tmp_path)
     glb = export_gltf(folder, tmp_path / "scene.glb")

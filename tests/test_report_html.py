@@ -130,6 +130,50 @@ def test_report_html_from_a_file_url_shows_its_images_and_plays_camera_0(small_r
     assert_matches_desktop(got, want, "report.html's player, camera 0, from file://")
 
 
+@needs_gl
+def test_report_html_plays_a_bundle_of_the_default_demos_size_from_a_file_url(tmp_path, browser):  # noqa: F811
+    """The default demo's 34,403 codes (a 6 x 11468 codebook as baked) and a 12,000-code sky codebook: the page's
+    player gets them within 4096 texels a side and draws camera 0 like ``BundleRenderer``."""
+    from neuras_distill.bake.bundle import load_bundle
+    from neuras_distill.pipeline.report_html import write_report_html
+    from neuras_distill.playback.renderer import BundleRenderer
+    from test_web import _run_folder, assert_textures_fit
+
+    bundle, cams = _run_folder(tmp_path, "demo-size-skybox")
+    run = bundle.parent
+    page = write_report_html(run, sample_report())
+    assert _parse(page.read_text("utf-8")).frames == [PLAYER_SRC]
+    assert max(load_bundle(bundle).textures["u_codebook"].shape[:2]) > 8192       # as baked: too tall for Chromium
+    assert assert_textures_fit(run / "web", 4096) <= 4096
+    browser.get(page.as_uri())
+    frame = browser.find_element("css selector", "iframe.player")
+    browser.execute_script("arguments[0].scrollIntoView();", frame)
+    browser.switch_to.frame(frame)
+    try:
+        got = wait_for_player(browser)
+    finally:
+        browser.switch_to.default_content()
+    with BundleRenderer(load_bundle(bundle)) as player:
+        want = np.round(player.render(cams, 0) * 255.0).astype(np.uint8)
+    assert_matches_desktop(got, want, "report.html's player, a demo-sized bundle with skyboxes, camera 0")
+
+
+def test_a_bundle_the_web_export_refuses_gets_a_page_saying_why(tmp_path):
+    """An atlas wider than the web's 4096 texels (a texture.page_size above it): the run still gets its report,
+    without a player, and no web/ folder (an earlier one is removed)."""
+    from neuras_distill.bake.bundle import bake
+    from neuras_distill.pipeline.report_html import write_report_html
+    from test_bake import make_model, quad_mesh
+
+    bake(make_model(h=2, w=4100, k=8), quad_mesh(), (0, 0, 0)).save(tmp_path / "bundle")
+    (tmp_path / "web").mkdir()
+    (tmp_path / "web" / MARKER).write_text("{}")                       # a player of an earlier bundle
+    text = write_report_html(tmp_path, sample_report()).read_text("utf-8")
+    assert "No web player in this run folder (the web export refused the bundle: texture u_index is 4100x2, " \
+           "above the export&#x27;s limit of 4096 texels per side" in text
+    assert "<iframe" not in text and not (tmp_path / "web").exists()
+
+
 def test_the_page_has_no_player_section_without_a_bundle(tmp_path):
     from neuras_distill.pipeline.report_html import write_report_html
     path = write_report_html(tmp_path, sample_report())

@@ -26,6 +26,7 @@ import math
 import shutil
 import threading
 import time
+from dataclasses import replace
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
@@ -34,8 +35,10 @@ import pytest
 import torch
 from PIL import Image
 
-from neuras_distill.bake.bundle import bake, load_bundle
-from neuras_distill.bake.glsl import GLSL_ES_GATHER, GLSL_ES_GATHER_ARRAY, GLSL_ES_PRECISION, to_glsl_es
+from neuras_distill.bake.bundle import Bundle, bake, codes_per_row, load_bundle, wrap_codebook
+from neuras_distill.bake.glsl import (GLSL_ES_GATHER, GLSL_ES_GATHER_ARRAY, GLSL_ES_PRECISION,
+                                      generate_fragment_shader, to_glsl_es)
+from neuras_distill.bake.texture_limit import DEFAULT_MAX_TEXTURE_SIZE
 from neuras_distill.bake.web import DATA_SCRIPT, MARKER, PLAYER_FILES, export_web
 from neuras_distill.cli import main
 from neuras_distill.errors import BadInputError
@@ -54,11 +57,67 @@ needs_gl = pytest.mark.gl  # tests/conftest.py: skipped without GL, failed under
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
+#: Exact codes in the default demo's bundle: as baked (``bundle.codes_per_row``, 3 per row) a 6 x 11468 codebook
+#: texture, taller than the 8192 SwiftShader allows. The demo-sized test bundles have as many.
+DEMO_CODES = 34403
+#: Codes of the demo-sized skybox codebook: above 8192 rows as baked (a sky codebook is never wrapped), within the
+#: desktop's 16384 (the default sky has 4096).
+DEMO_SKY_CODES = 12000
+
+
+def grown(b: Bundle, model, codes: int, sky_codes: int | None = None, seed: int = 0) -> Bundle:
+    """``b`` (baked from ``model``) with a codebook of ``codes`` random codes, wrapped and read by a shader as
+    ``bundle.bake`` does (``codes_per_row``, ``generate_fragment_shader``), and an index map of distinct codes
+    spread over all of it (the last code included); with ``sky_codes`` the same for the skybox codebook (never
+    wrapped by the bake). What a distillation with that many codes bakes, without the minutes of k-means."""
+    gen = np.random.default_rng(seed)
+    dim, c4 = int(b.manifest["feature_dim"]), b.textures["u_codebook"].shape[1]
+
+    def codebook(k: int, c4: int, dim: int) -> np.ndarray:            # (k, c4, 4), zero padded after dim
+        cb = np.zeros((k, 4 * c4), np.float32)
+        cb[:, :dim] = gen.normal(0.0, 1.0, (k, dim))
+        return cb.reshape(k, c4, 4)
+
+    def spread(index: np.ndarray, k: int) -> np.ndarray:              # distinct codes, the last one included
+        picked = gen.permutation(k)[:index.size] if index.size <= k else gen.integers(0, k, index.size)
+        picked[gen.integers(index.size)] = k - 1
+        return picked.reshape(index.shape).astype(np.uint16)
+
+    per_row = codes_per_row(codes)
+    textures = dict(b.textures, u_codebook=wrap_codebook(codebook(codes, c4, dim), per_row),
+                    u_index=spread(b.textures["u_index"], codes))
+    manifest = dict(b.manifest, num_codes=codes, codes_per_row=per_row)
+    if sky_codes is not None:
+        sky_c4 = b.textures["u_sky_codebook"].shape[1]
+        textures.update(u_sky_codebook=codebook(sky_codes, sky_c4, int(b.manifest["skybox"]["feature_dim"])),
+                        u_sky_index=spread(b.textures["u_sky_index"], sky_codes))
+        manifest["skybox"] = dict(b.manifest["skybox"], num_codes=sky_codes)
+    return replace(b, textures=textures, manifest=manifest,
+                   fragment_shader=generate_fragment_shader(model, codes_per_row=per_row))
+
+
+def _looking_at(target: np.ndarray, offsets: list, width: int, height: int) -> Cameras:
+    """Cameras at ``target + offset`` looking at ``target`` (z up), 70 degrees wide, ``width`` x ``height``."""
+    from neuras_distill.render.cameras import look_at
+
+    c2w = torch.stack([look_at(torch.tensor(target + np.asarray(o)), torch.tensor(target),
+                               torch.tensor([0.0, 0.0, 1.0])) for o in offsets]).float()
+    f = 0.5 * width / math.tan(math.radians(35))
+    return Cameras(c2w, f, f, width / 2, height / 2, width, height)
+
+
 def _run_folder(root: Path, kind: str) -> tuple[Path, Cameras | None]:
     """runs/<kind>/bundle (+ cameras.json beside it, except for ``single``: the export's default orbit camera)."""
     run = root / kind
     cams = None
-    if kind == "single":
+    if kind == "demo-size":             # the default demo's codebook on a 128 x 96 atlas of distinct codes
+        model, mesh = make_model(h=96, w=128, k=8, use_facing=True), quad_mesh()
+        mesh = MeshData(mesh.vertices, mesh.faces, mesh.uvs * 0.8 + 0.1)
+        b = grown(bake(model, mesh, (0.1, 0.2, 0.3), origin=ORIGIN, extra_manifest={"silhouette_blend": True}),
+                  model, DEMO_CODES)
+        assert b.textures["u_codebook"].shape[:2] == (11468, 6)      # as the default demo bakes it
+        cams = _looking_at(ORIGIN + [0.5, 0.5, 0.0], [[0.5, -0.6, 1.1], [-0.3, 0.2, 1.3]], 640, 480)
+    elif kind == "single":
         model, mesh = make_model(h=6, w=8, k=8, use_facing=True), quad_mesh()
         mesh = MeshData(mesh.vertices, mesh.faces, mesh.uvs * 0.8 + 0.1)
         b = bake(model, mesh, (0.1, 0.2, 0.3), origin=ORIGIN,
@@ -78,17 +137,15 @@ def _run_folder(root: Path, kind: str) -> tuple[Path, Cameras | None]:
         cams = Cameras.orbit(ORIGIN, 2.0, 2, width=128, height=96, elevation_deg=20.0, phase_deg=10.0)
     else:
         from neuras_distill.neural.skybox import SkyboxLayers
-        from neuras_distill.render.cameras import look_at
         from test_skybox import _tiny_mesh_model, _trained_like
 
         model, mesh = _tiny_mesh_model()
         b = bake(model, mesh, (0, 0, 0), skybox=_trained_like(SkyboxLayers(ORIGIN, [2.0, 5.0], 4)), origin=ORIGIN,
                  extra_manifest={"silhouette_blend": True})
-        eyes = [ORIGIN + e for e in ([0.3, -0.5, 0.6], [-0.4, 0.2, 0.5])]        # the quad and the sky around it
-        c2w = torch.stack([look_at(torch.tensor(e), torch.tensor(ORIGIN), torch.tensor([0.0, 0.0, 1.0]))
-                           for e in eyes]).float()
-        f = 0.5 * 80 / math.tan(math.radians(35))
-        cams = Cameras(c2w, f, f, 40.0, 22.5, 80, 45)
+        if kind == "demo-size-skybox":  # the demo's codebook and a sky codebook taller than SwiftShader's limit
+            b = grown(b, model, DEMO_CODES, DEMO_SKY_CODES)
+            assert b.textures["u_sky_codebook"].shape[0] == DEMO_SKY_CODES > 8192
+        cams = _looking_at(ORIGIN, [[0.3, -0.5, 0.6], [-0.4, 0.2, 0.5]], 80, 45)   # the quad and the sky around it
     b.save(run / "bundle")
     if cams is not None:
         (run / "cameras.json").write_text(json.dumps({"train": cams.to_json(), "test": cams.to_json()}))
@@ -98,7 +155,8 @@ def _run_folder(root: Path, kind: str) -> tuple[Path, Cameras | None]:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("runs")
-    return {kind: _run_folder(root, kind) for kind in ("single", "two-layer", "skybox", "paged")}
+    return {kind: _run_folder(root, kind) for kind in ("single", "two-layer", "skybox", "paged", "demo-size",
+                                                        "demo-size-skybox")}
 
 
 # ------------------------------------------------------------------------------------------ the dialect
@@ -117,7 +175,7 @@ def _desktop_sources(runs) -> list[str]:
 
 def test_the_es_dialect_differs_only_by_the_documented_rewrite(runs):
     sources = _desktop_sources(runs)
-    assert sum("textureGather(" in s for s in sources) == 5          # the four mesh shaders and the sky's
+    assert sum("textureGather(" in s for s in sources) == 8          # the six mesh shaders and the two skies'
     for src in sources:
         es = to_glsl_es(src)
         assert to_glsl_es(src) == es                                   # deterministic
@@ -223,6 +281,25 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(runs, tmp_path, caps
         export_web(bundle, theirs / "notes.txt")
 
 
+def test_a_texture_that_cannot_fit_the_limit_exits_2_naming_it_and_writes_nothing(runs, tmp_path, capsys):
+    cases = [("single", "4", "texture u_index is 8x6, above the export's limit of 4 texels per side: bake it with "
+                             "texture.page_size 4 or less, or export with --max-texture-size 8 "),
+             ("paged", "6", "texture u_codebook is 2x64 (64 codes of 2 texels; at most 18 fit 6x6), above the "
+                            "export's limit of 6 texels per side: bake it with fewer texture.num_codes, or export "
+                            "with --max-texture-size 12 "),
+             ("skybox", "12", "texture u_sky_index is 12x16, above the export's limit of 12 texels per side: bake it "
+                              "with a smaller skybox.resolution or fewer skybox.layers"),
+             ("demo-size", "64", "texture u_codebook is 6x11468 (34403 codes of 2 texels; at most 2048 fit 64x64)"),
+             ("single", "0", "--max-texture-size must be at least 1 texel"),
+             ("single", "big", "--max-texture-size must be an integer")]
+    for kind, limit, words in cases:
+        code, err = _exit_and_stderr(capsys, ["export", str(runs[kind][0]), "--format", "web", "--out",
+                                              str(tmp_path / "web"), "--max-texture-size", limit])
+        assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+        assert "--max-texture-size" in err
+    assert not any(tmp_path.iterdir())                                  # no output, no temporary folder
+
+
 # ------------------------------------------------------------------------------------------ the browser
 def _browser_reason() -> str | None:
     try:
@@ -304,24 +381,38 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @needs_gl
-@pytest.mark.parametrize("kind, camera", [("single", 0), ("two-layer", 1), ("skybox", 1), ("paged", 0)])
+@pytest.mark.parametrize("kind, camera", [("single", 0), ("two-layer", 1), ("skybox", 1), ("paged", 0),
+                                          ("demo-size", 0), ("demo-size-skybox", 0), ("demo-size-skybox", 1)])
 def test_browser_plays_the_held_out_camera_like_the_desktop_player(runs, browser, server, kind, camera):
     from neuras_distill.playback.renderer import BundleRenderer
 
     bundle, _ = runs[kind]
     root, base = server
-    out = root / kind
+    out = root / f"{kind}-{camera}"
     assert main(["export", str(bundle), "--format", "web", "--out", str(out)]) == 0
+    largest = assert_textures_fit(out, DEFAULT_MAX_TEXTURE_SIZE)
+    baked = max(max(a.shape[:2]) for a in load_bundle(bundle).textures.values())
+    print(f"{kind}: largest texture side {largest} (the bundle's: {baked})")
     cams = Cameras.from_json(json.loads((out / "cameras.json").read_text())["test"])
     with BundleRenderer(load_bundle(bundle)) as player:
         want = np.round(player.render(cams, camera) * 255.0).astype(np.uint8)
-    got = _play(browser, f"{base}/{kind}/index.html?camera={camera}")
+    got = _play(browser, f"{base}/{out.name}/index.html?camera={camera}")
     assert got.shape == (cams.height, cams.width, 3)
     bg = np.round(np.asarray(load_bundle(bundle).background_color) * 255.0)
     assert np.mean(np.abs(want.astype(float) - bg).sum(-1) > 3) > 0.05        # the view shows the scene
     with BundleRenderer(load_bundle(bundle)) as player:                        # ... the mesh included
         assert np.mean(np.abs(player.render(cams, camera, skybox=False) * 255.0 - bg).sum(-1) > 3) > 0.05
     assert_matches_desktop(got, want, f"{kind} camera {camera}")
+
+
+def assert_textures_fit(out: Path, limit: int) -> int:
+    """Every texture of the web folder ``out`` has sides of at most ``limit`` texels (a texture array's pages
+    counted one by one); returns the largest side."""
+    scene = json.loads((out / "scene.json").read_text())
+    assert scene["max_texture_size"] == limit
+    sides = {t["name"]: (t["width"], t["height"] // t.get("layers", 1)) for t in scene["textures"]}
+    assert max(max(s) for s in sides.values()) <= limit, sides
+    return max(max(s) for s in sides.values())
 
 
 def assert_matches_desktop(got: np.ndarray, want: np.ndarray, what: str) -> None:

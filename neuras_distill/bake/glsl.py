@@ -117,18 +117,43 @@ def bilinear_feature_lines(out: list[str], uv: str, tex_w: int, tex_h: int, inde
         f"{indent}int k11 = int(k.y);",
     ]
     names = []
-    n = int(codes_per_row)
-
-    def at(c: int, k: str) -> str:       # code k's c-th vec4 (``bundle.wrap_codebook``: n codes per texture row)
-        return f"ivec2({c}, {k})" if n == 1 else f"ivec2(({k} % {n}) * {c4} + {c}, {k} / {n})"
-
     for c in range(c4):
-        out.append(f"{indent}vec4 {prefix}_{c} = w00 * texelFetch({codebook}, {at(c, 'k00')}, 0)"
-                   f" + w10 * texelFetch({codebook}, {at(c, 'k10')}, 0)"
-                   f" + w01 * texelFetch({codebook}, {at(c, 'k01')}, 0)"
-                   f" + w11 * texelFetch({codebook}, {at(c, 'k11')}, 0);")
+        fetch = [codebook_fetch(codebook, c, k, c4, codes_per_row) for k in CORNER_CODES]
+        out.append(f"{indent}vec4 {prefix}_{c} = w00 * {fetch[0]} + w10 * {fetch[1]} + w01 * {fetch[2]}"
+                   f" + w11 * {fetch[3]};")
         names.append(f"{prefix}_{c}")
     return names
+
+
+#: The GLSL names of the four corner codes :func:`bilinear_feature_lines` fetches, in blending order.
+CORNER_CODES = ("k00", "k10", "k01", "k11")
+
+
+def codebook_fetch(codebook: str, c: int, k: str, c4: int, codes_per_row: int = 1) -> str:
+    """GLSL of the ``texelFetch`` of code ``k``'s c-th vec4 (features 4c..4c+3) from the sampler ``codebook``, a
+    texture of ``codes_per_row`` n codes of ``c4`` texels per row (``bundle.wrap_codebook``): texel
+    ``(c, k)`` when n is 1, else ``((k % n) * c4 + c, k / n)``."""
+    n = int(codes_per_row)
+    at = f"ivec2({c}, {k})" if n == 1 else f"ivec2(({k} % {n}) * {c4} + {c}, {k} / {n})"
+    return f"texelFetch({codebook}, {at}, 0)"
+
+
+def rewrap_codebook_fetches(source: str, codebook: str, c4: int, old: int, new: int) -> str:
+    """``source`` (a shader :func:`bilinear_feature_lines` wrote, reading ``codebook`` with ``old`` codes per row)
+    reading it with ``new`` codes per row instead: each of the ``4 * c4`` fetches :func:`codebook_fetch` writes
+    is replaced, nothing else changes, so the result equals the shader generated with ``codes_per_row=new``
+    (the web export re-wraps a codebook to its texture limit, ``bake/texture_limit.py``). Raises ValueError
+    when a fetch is not in ``source`` exactly once (a shader this package did not generate)."""
+    if old == new:
+        return source
+    swaps = [(codebook_fetch(codebook, c, k, c4, old), codebook_fetch(codebook, c, k, c4, new))
+             for c in range(c4) for k in CORNER_CODES]
+    for before, _ in swaps:
+        if source.count(before) != 1:
+            raise ValueError(f"the shader reads {codebook} {source.count(before)} times as {before}, not once")
+    for before, after in swaps:
+        source = source.replace(before, after)
+    return source
 
 
 def _mlp_lines(out: list[str], shader, in_names: list[str], dim: int, c4: int, view_has_dir: bool,

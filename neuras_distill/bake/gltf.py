@@ -15,7 +15,8 @@ Layout (one buffer, the GLB's binary chunk; every buffer view starts on a 4-byte
         indices     uint16 (V < 65535) or uint32
     materials[0]: KHR_materials_unlit, baseColorTexture = the bundle's plain_rgb.png (8-bit RGB, values as
         displayed, i.e. sRGB-encoded base colour as glTF expects), sampler LINEAR / LINEAR_MIPMAP_LINEAR,
-        CLAMP_TO_EDGE; doubleSided unless the manifest says ``cull_back_faces``
+        CLAMP_TO_EDGE; doubleSided unless the manifest says ``cull_back_faces``; each image at most
+        ``max_texture_size`` texels a side (default 4096, ``bake/texture_limit.py``; a larger page is refused)
     an atlas in pages (``manifest.atlas_pages`` P > 1): one primitive, material, texture and image per page
         with faces (primitive p's indices are the faces on page p, its material p's image page p of
         plain_rgb.png as its own PNG); TEXCOORD_0 is then the uv within the vertex's page
@@ -48,6 +49,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import BadInputError
+from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, check_side, checked_limit
 
 EXTENSION = "NEURAS_bundle"
 EXTENSION_VERSION = 1
@@ -93,9 +95,10 @@ def _glb_mesh(bundle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return world.astype(np.float32), np.asarray(mesh.uvs, np.float32)[used], remap.reshape(-1, 3)
 
 
-def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
+def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> bytes:
     """The GLB of ``bundle`` (a loaded :class:`~neuras_distill.bake.bundle.Bundle` with ``plain_rgb``) carrying
-    ``files`` ({name: bytes}: the bundle folder's files, ``bundle.read_bundle_file_bytes``) losslessly."""
+    ``files`` ({name: bytes}: the bundle folder's files, ``bundle.read_bundle_file_bytes``) losslessly; its
+    images (one per atlas page) at most ``max_texture_size`` texels a side, else BadInputError."""
     from .bundle import PLAIN_FILE
 
     if PLAIN_FILE not in files:
@@ -103,8 +106,10 @@ def glb_bytes(bundle, files: dict[str, bytes]) -> bytes:
                             "lack it): re-run the distillation to export it as glTF")
     from .bundle import atlas_pages, encode_png_rgb
 
-    positions, uvs, faces = _glb_mesh(bundle)
     pages = atlas_pages(bundle.manifest)
+    check_side("plain_rgb", bundle.plain_rgb.shape[1], bundle.plain_rgb.shape[0], checked_limit(max_texture_size),
+               pages)
+    positions, uvs, faces = _glb_mesh(bundle)
     face_page = np.zeros(len(faces), np.int64)
     if pages > 1:                      # each vertex lies on one page: its uv within that page's own texture
         vertex_page = np.clip(np.floor(uvs[:, 1].astype(np.float64) * pages), 0, pages - 1).astype(np.int64)
@@ -241,8 +246,9 @@ def written_by_us(path) -> bool:
     return str((doc.get("asset") or {}).get("generator", "")).startswith(GENERATOR + " ")
 
 
-def export_gltf(bundle_path, out) -> Path:
-    """Write the bundle at ``bundle_path`` (a folder, or a GLB of ours) as the glTF binary ``out`` (.glb).
+def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> Path:
+    """Write the bundle at ``bundle_path`` (a folder, or a GLB of ours) as the glTF binary ``out`` (.glb), its
+    images at most ``max_texture_size`` texels a side (``texture_limit.check_side``).
 
     Validates everything first (the bundle with its checksums, the output path: absent or a GLB of ours), then
     writes a temporary file beside ``out`` and renames it into place: on any error nothing is left behind.
@@ -251,6 +257,7 @@ def export_gltf(bundle_path, out) -> Path:
     from .bundle import load_bundle, read_bundle_file_bytes
 
     src, out = Path(bundle_path), Path(out)
+    limit = checked_limit(max_texture_size)
     if out.suffix.lower() != ".glb":
         raise BadInputError(f"--out {out}: a glTF binary must end in .glb")
     if out.exists() or out.is_symlink():
@@ -266,7 +273,7 @@ def export_gltf(bundle_path, out) -> Path:
         raise BadInputError(f"bundle {src} has no plain RGB texture (plain_rgb.png; bundles baked by older "
                             "versions lack it): re-run the distillation to export it as glTF")
     files = read_bundle_files(src) if src.is_file() else read_bundle_file_bytes(src)
-    data = glb_bytes(bundle, files)
+    data = glb_bytes(bundle, files, limit)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.tmp-{os.getpid()}-{int(time.time() * 1000)}"
     try:

@@ -9,7 +9,8 @@ it, and so is opening ``index.html`` from ``file://`` (where ``fetch`` cannot re
 Layout of DIR (every binary file raw little-endian, no header; the sizes are in scene.json)::
 
     index.html, player.js       the player (package data, copied unchanged)
-    scene.json                  what the player needs: textures, mesh draw calls, passes, bounds, background
+    scene.json                  what the player needs: textures, mesh draw calls, passes, bounds, background,
+                                the texture limit the folder was exported for (``max_texture_size``)
     cameras.json                the run's {"train": Cameras.to_json(), "test": ...} copied byte for byte from
                                 the bundle's parent folder; without one a default orbit camera (the framing of
                                 ``viewer.world_orbit_cameras``, 640 x 480, world frame) as "test" camera 0 and
@@ -18,7 +19,10 @@ Layout of DIR (every binary file raw little-endian, no header; the sizes are in 
                                 uv, ``MeshData.vertex_normals`` (the VBO layout of ``rasterize.mesh_vertex_array``)
     faces.bin                   uint32 (F, 3) triangle indices; ``scene.json`` "layers" = ``mesh_layers``
     tex_<uniform>.bin           one per bundle texture: uint16 (H, W[, C]) -> R16UI..RGBA16UI, float32 ->
-                                R32F..RGBA32F, row 0 = v = 0, NEAREST (as ``BundleRenderer`` binds them)
+                                R32F..RGBA32F, row 0 = v = 0, NEAREST (as ``BundleRenderer`` binds them); every
+                                side at most ``max_texture_size`` (scene.json; default 4096,
+                                ``bake/texture_limit.py``): a taller codebook is wrapped again with more codes
+                                per row and the shaders reading it say so
     data.js                     every file above (not the player, not the marker) base64 in one script:
                                 ``window.NEURAS_WEB_DATA = {"files": {path: base64}}``; the player loads it only
                                 from a ``file://`` page (over HTTP it fetches the files)
@@ -52,6 +56,7 @@ import numpy as np
 from .. import __version__
 from ..errors import BadInputError
 from .bundle import PAGED_TEXTURES, atlas_pages
+from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, checked_limit, fit_bundle_textures
 
 MARKER = ".neuras-distill-web"
 PLAYER_FILES = ("index.html", "player.js")
@@ -78,9 +83,10 @@ def _cameras_json(bundle, src: Path) -> bytes:
     return json.dumps({"test": world.to_json(), "default_orbit": True}).encode("utf-8")
 
 
-def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
+def web_files(bundle, cameras_json: bytes, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> dict[str, bytes]:
     """{relative path: bytes} of the web folder for a loaded ``bundle`` (see the module docstring), the marker
-    included."""
+    included, every texture at most ``max_texture_size`` texels a side (``texture_limit.fit_bundle_textures``;
+    BadInputError naming a texture that cannot fit)."""
     from ..playback.projection import mesh_bounds
     from ..playback.rasterize import mesh_layers
     from ..playback.shaders import VERTEX_SHADER, shader_variant
@@ -88,6 +94,8 @@ def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
     from .glsl import to_glsl_es
     from .glsl_sky import SKY_VERTEX_SHADER
 
+    limit = checked_limit(max_texture_size)
+    fitted, fragment_shader, sky_fragment_shader = fit_bundle_textures(bundle, limit)
     mesh = bundle.mesh
     manifest = dict(getattr(bundle, "manifest", None) or {})
     files: dict[str, bytes] = {}
@@ -97,7 +105,7 @@ def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
     files["faces.bin"] = np.ascontiguousarray(mesh.faces, dtype="<u4").tobytes()
     textures = []
     pages = atlas_pages(manifest)
-    for name, arr in sorted(bundle.textures.items()):
+    for name, arr in sorted(fitted.items()):
         arr = np.ascontiguousarray(arr)
         if arr.dtype not in (np.uint16, np.float32) or arr.ndim not in (2, 3) or \
                 (arr.ndim == 3 and not 1 <= arr.shape[2] <= 4):
@@ -113,12 +121,12 @@ def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
     programs = {}
     for layer in sorted({max(0, int(layer)) for layer, _, _ in layers} or {0}):
         programs[str(layer)] = f"shaders/mesh{layer}.frag"
-        files[programs[str(layer)]] = shader_variant(to_glsl_es(bundle.fragment_shader), layer).encode("utf-8")
+        files[programs[str(layer)]] = shader_variant(to_glsl_es(fragment_shader), layer).encode("utf-8")
     files["shaders/mesh.vert"] = to_glsl_es(VERTEX_SHADER).encode("utf-8")
     sky = None
-    if getattr(bundle, "sky_fragment_shader", None):
+    if sky_fragment_shader:
         files["shaders/sky.vert"] = to_glsl_es(SKY_VERTEX_SHADER).encode("utf-8")
-        files["shaders/sky.frag"] = to_glsl_es(bundle.sky_fragment_shader).encode("utf-8")
+        files["shaders/sky.frag"] = to_glsl_es(sky_fragment_shader).encode("utf-8")
         sky = {"vertex": "shaders/sky.vert", "fragment": "shaders/sky.frag",
                "center": [float(x) for x in np.asarray(manifest["skybox"]["center"], np.float64).reshape(3)]}
     silhouette = None
@@ -135,6 +143,7 @@ def web_files(bundle, cameras_json: bytes) -> dict[str, bytes]:
         "mesh": {"vertices": int(mesh.num_vertices), "faces": int(mesh.num_faces), "vbo": "mesh.bin",
                  "ibo": "faces.bin", "layers": layers},
         "vertex_shader": "shaders/mesh.vert", "programs": programs, "textures": textures,
+        "max_texture_size": limit,
         "sky": sky, "silhouette": silhouette,
     }
     files["scene.json"] = json.dumps(scene, indent=1).encode("utf-8")
@@ -156,16 +165,18 @@ def data_script(files: dict[str, bytes]) -> bytes:
             ).encode("ascii")
 
 
-def export_web(bundle_path, out) -> Path:
-    """Write the bundle at ``bundle_path`` (a folder, or a GLB of ours) as the static web folder ``out``.
+def export_web(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> Path:
+    """Write the bundle at ``bundle_path`` (a folder, or a GLB of ours) as the static web folder ``out``, every
+    texture at most ``max_texture_size`` texels a side.
 
     Validates everything first (the bundle with its checksums, cameras.json beside it, the output: absent or a
-    folder with our marker), builds the folder under a temporary sibling name and renames it into place: on any
-    error nothing is left behind. Returns ``out``.
+    folder with our marker, the textures' sizes), builds the folder under a temporary sibling name and renames it
+    into place: on any error nothing is left behind. Returns ``out``.
     """
     from .bundle import load_bundle
 
     src, out = Path(bundle_path), Path(out)
+    limit = checked_limit(max_texture_size)
     if out.exists() or out.is_symlink():
         if not out.is_dir() or out.is_symlink() or not (out / MARKER).is_file():
             raise BadInputError(f"output {out} exists and is not a web folder written by neuras-distill; "
@@ -173,7 +184,7 @@ def export_web(bundle_path, out) -> Path:
     if not src.exists():
         raise BadInputError(f"bundle {src} does not exist")
     bundle = load_bundle(src)
-    files = web_files(bundle, _cameras_json(bundle, src.resolve()))
+    files = web_files(bundle, _cameras_json(bundle, src.resolve()), limit)
     out.parent.mkdir(parents=True, exist_ok=True)
     stamp = f"{os.getpid()}-{int(time.time() * 1000)}"
     tmp, old = out.parent / f".{out.name}.tmp-{stamp}", out.parent / f".{out.name}.old-{stamp}"

@@ -14,6 +14,7 @@ from __future__ import annotations
 import html
 import json
 import re
+import shutil
 from pathlib import Path
 
 from .report import report_blocks
@@ -72,11 +73,11 @@ def block_html(block) -> str:
     raise ValueError(f"unknown report block {kind!r}")
 
 
-def _player_html(size: tuple[int, int] | None) -> str:
-    """The section embedding the web player (or saying why there is none)."""
+def _player_html(size: tuple[int, int] | None, reason: str | None = None) -> str:
+    """The section embedding the web player (or saying why there is none: ``reason``, else no bundle)."""
     if size is None:
-        return ('<h2>Play the bundle</h2><p class="note">No web player in this run folder (no bundle was '
-                f"exported to {WEB_DIR}/).</p>")
+        why = html.escape(reason) if reason else f"no bundle was exported to {WEB_DIR}/"
+        return f'<h2>Play the bundle</h2><p class="note">No web player in this run folder ({why}).</p>'
     w, h = size
     return ("<h2>Play the bundle</h2>"
             f'<iframe class="player" src="{html.escape(PLAYER_SRC)}" title="neuras-distill web player" '
@@ -107,16 +108,17 @@ def _shown_images(blocks) -> set[str]:
     return out
 
 
-def render_html(rep: dict, root: Path, player_size: tuple[int, int] | None) -> str:
+def render_html(rep: dict, root: Path, player_size: tuple[int, int] | None, no_player: str | None = None) -> str:
     """The page for report ``rep`` of the run folder ``root``; ``player_size`` (w, h) of the embedded player's
-    camera, or None without a player. The player follows the summary table (the report's first table)."""
+    camera, or None without a player (``no_player``: why, shown on the page). The player follows the summary
+    table (the report's first table)."""
     blocks = report_blocks(rep)
     parts = []
     first_table = next(i for i, b in enumerate(blocks) if b[0] == "table")
     for i, block in enumerate(blocks):
         parts.append(block_html(block))
         if i == first_table:
-            parts.append(_player_html(player_size))
+            parts.append(_player_html(player_size, no_player))
     parts.append(_other_views(root, _shown_images(blocks)))
     return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             "<title>neuras-distill report</title>\n<style>" + _STYLE + "</style>\n</head>\n<body>\n"
@@ -130,16 +132,24 @@ def _camera_size(web: Path) -> tuple[int, int]:
 
 def write_report_html(root: Path, rep: dict) -> Path:
     """Export ``root/bundle`` (when there is one) as the web player ``root/web`` and write ``root/report.html``.
-    Returns the page's path."""
-    from ..bake.web import export_web
+    Returns the page's path. A bundle the web export refuses (a texture above its limit, ``bake/texture_limit.py``)
+    gets the page without a player, saying why."""
+    from ..bake.web import MARKER, export_web
+    from ..errors import BadInputError
 
     root = Path(root)
-    size = None
+    size, reason = None, None
     if (root / "bundle").is_dir():
-        web = export_web(root / "bundle", root / WEB_DIR)
-        size = _camera_size(web)
+        try:
+            web = export_web(root / "bundle", root / WEB_DIR)
+        except BadInputError as exc:
+            reason = f"the web export refused the bundle: {exc}"
+            if (root / WEB_DIR / MARKER).is_file():       # a player of an earlier bundle would mislead
+                shutil.rmtree(root / WEB_DIR)
+        else:
+            size = _camera_size(web)
     path = root / "report.html"
-    path.write_text(render_html(rep, root, size), encoding="utf-8")
+    path.write_text(render_html(rep, root, size, reason), encoding="utf-8")
     return path
 
 

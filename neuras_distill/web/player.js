@@ -203,7 +203,7 @@
     if (array.length !== desc.width * desc.height * comps) {
       throw new Error(`${desc.file} holds ${array.length} values, expected ${desc.width * desc.height * comps}`);
     }
-    const max = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+    const max = gl.getParameter(gl.MAX_TEXTURE_SIZE);   // the export keeps every side within scene.max_texture_size
     const layers = desc.layers || 1;         // an atlas in pages: a texture array, pages stacked along the rows
     const t = gl.createTexture();
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
@@ -219,7 +219,8 @@
       gl.texImage3D(target, 0, internal, desc.width, desc.height / layers, layers, 0, format, type, array);
     } else {
       if (Math.max(desc.width, desc.height) > max) {
-        throw new Error(`texture ${desc.name} is ${desc.width}x${desc.height}; this browser allows at most ${max} per side`);
+        throw new Error(`texture ${desc.name} is ${desc.width}x${desc.height}; this browser allows at most ${max} per side: ` +
+                        `export it again with --max-texture-size ${max}`);
       }
       gl.bindTexture(target, t);
       gl.texImage2D(target, 0, internal, desc.width, desc.height, 0, format, type, array);
