@@ -98,7 +98,7 @@ def test_references_to_decisions_name_an_entry():
     assert len(titles) >= 30
     missing = []
     for path in tracked_files():
-        if not path.endswith((".py", ".md", ".toml")):
+        if not path.endswith((".py", ".md", ".toml")) or path == SELF:
             continue
         text = (ROOT / path).read_text(encoding="utf-8")
         for ref in re.findall(r'decisions\.md,? "([^"]+)"', text.replace("\n#", " ").replace("\n", " ")):
@@ -172,7 +172,7 @@ def test_readme_own_field_example_is_a_valid_field(monkeypatch):
         calls.append((field, cameras, config, out))
 
     monkeypatch.setattr(nd, "distill", fake_distill, raising=False)
-    exec(compile(block, "README.md", "exec"), {"__name__": "readme_example"})
+    exec(compile(block, "README.md", "exec"), {"__name__": "__main__"})
     (field, cameras, config, out), = calls
     assert field.kind == "sdf" and len(cameras) == 24 and cameras.width == 256
     assert isinstance(config, nd.DistillConfig) and config.train.steps == nd.load_config("fast").train.steps

@@ -162,7 +162,7 @@ def _machine(gl: dict | None) -> dict:
 
 def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, target_ms: float | None = None,
           field=None, cameras=None, progress: bool = True, log=print) -> dict:
-    """Bench a finished run; returns ``bench.json``'s content (see the module docstring and README).
+    """Bench a finished run; returns ``bench.json``'s content (see the module docstring and docs/contract.md).
 
     Args:
         run_dir: a run folder written by a run command of this version (report.json, bundle/, work/).

@@ -13,8 +13,7 @@ row 0 of the array = v = 0 (uploaded as is). Uniforms the compiled program optim
 Cameras are given in world coordinates; the renderer moves them into the bundle's frame (``bundle.origin``
 subtracted in float64) before building matrices. A bundle with skyboxes is drawn in two passes: first the
 mesh, then a full-screen triangle at the far plane with ``bundle.sky_fragment_shader`` and depth test "<="
-without depth writes, so only pixels the mesh left empty run the skybox shader (early depth rejection:
-measured on the street scene at 960x540, mesh covering 74% of pixels, 131 ms -> see the README); uniforms
+without depth writes, so only pixels the mesh left empty run the skybox shader (early depth rejection); uniforms
 ``u_sky_origin`` = camera centre relative to the skybox centre, ``u_cam_rot``, ``u_intrinsics``,
 ``u_height``. ``render(..., skybox=False)`` leaves the sky pass out (the ablation
 "without skyboxes": uncovered pixels get the clear colour).
