@@ -265,6 +265,13 @@ def _nerfstudio_inputs(args) -> tuple:
         args.cameras = None
     field, cameras, cfg = _checkpoint_inputs(args, str(run / "config.yml" if run.is_dir() else run), "nerfstudio",
                                              options)
+    if cameras is not None and exported is None:     # the dataset's transforms.json: the cameras as trained
+        import json
+
+        names = [str(f.get("file_path", "")) for f in json.loads(Path(args.cameras).read_text())["frames"]]
+        cameras, count = field.corrected_cameras(cameras, names)
+        if count:
+            field.notes.append(f"the camera optimizer's pose corrections applied to {count} training cameras")
     if exported is not None:
         args.cameras = exported
         width = height = None

@@ -295,6 +295,23 @@ def test_cli_bad_runs_exit_2_with_one_line(tmp_path):
         assert not (tmp_path / "run").exists()
 
 
+def test_runs_the_teacher_cannot_place_exit_2_with_one_line(tmp_path):
+    """No dataparser_transforms.json (no frame, scale or far plane), and a far plane float32 cannot resolve
+    against the scene: one line each, exit 2, no run folder."""
+    no_transforms = _copy_run(tmp_path / "a")
+    (no_transforms / "dataparser_transforms.json").unlink()
+    too_far = _copy_run(tmp_path / "b")
+    cfg = (too_far / "config.yml").read_text()
+    (too_far / "config.yml").write_text(cfg.replace("far_plane: 1000.0", "far_plane: 1.0e+12"))
+    for target, fragment in ((no_transforms, "has no dataparser_transforms.json"),
+                             (too_far, "float32 cannot resolve the near scene")):
+        out = subprocess.run([sys.executable, "-m", "neuras_distill.cli", "from-nerfstudio", str(target), "--out",
+                              str(tmp_path / "run"), "--quiet"], capture_output=True, text=True, timeout=300)
+        lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+        assert out.returncode == 2 and len(lines) == 1 and fragment in lines[0], out.stderr
+        assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.gl
 def test_a_nerfacto_run_distills_end_to_end(tmp_path):
     """The fixture through every stage on ten of its dataset's cameras (small sizes; the full-size run is in the

@@ -50,4 +50,25 @@ class NerfstudioAdapter:
         state = field_state(pipeline, str(run.checkpoint))
         check_finite(state, str(run.checkpoint))
         network = NerfactoNetwork(state, settings, appearance=appearance, source=str(run.checkpoint)).eval()
-        return NerfstudioField(run, network, settings, foreground_box=foreground_box)
+        field = NerfstudioField(run, network, settings, foreground_box=foreground_box)
+        field.pose_adjustment = pose_adjustment(pipeline, settings, field.notes)
+        return field
+
+
+def pose_adjustment(pipeline: dict, settings, notes: list):
+    """The camera optimizer's (K, 6) float64 pose corrections of the K training images (SO3xR3), or None when it
+    was off or learned another kind (a note says so)."""
+    import numpy as np
+
+    key = next((k for k in pipeline if k.endswith("camera_optimizer.pose_adjustment")), None)
+    if key is None or settings.camera_optimizer == "off":
+        return None
+    if settings.camera_optimizer != "SO3xR3":
+        notes.append(f"camera optimizer mode {settings.camera_optimizer}: its pose corrections are not applied "
+                     "(SO3xR3, nerfacto's default, is)")
+        return None
+    value = pipeline[key].detach().double().numpy()
+    if value.ndim != 2 or value.shape[1] != 6 or not np.isfinite(value).all():
+        notes.append(f"camera optimizer corrections of shape {tuple(value.shape)} or not finite: not applied")
+        return None
+    return value

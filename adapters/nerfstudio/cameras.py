@@ -7,11 +7,16 @@ poses moved into the field's frame (``x = R^T (x_ns / scale - t)``, axes ``R^T R
 user gives (image size and focal length in pixels; principal point at the centre). The dataset's own
 ``transforms.json`` carries intrinsics and is read by ``Cameras.from_transforms`` instead. The CLI tells the two
 apart by the JSON's top level (a list here, an object with ``frames`` there).
+
+It also owns :func:`corrected_cameras`: the dataset's training cameras moved by the pose corrections the camera
+optimizer learned (``_model.camera_optimizer.pose_adjustment``, mode SO3xR3, nerfacto's default), which
+nerfstudio applies to every training ray.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -49,3 +54,58 @@ def exported_cameras(path, field, width: int | None, height: int | None, focal: 
     n = len(poses)
     return Cameras(torch.as_tensor(c2w, dtype=torch.float32), [focal] * n, [focal] * n, [width / 2.0] * n,
                    [height / 2.0] * n, int(width), int(height))
+
+
+def training_frame_indices(names: list[str], eval_mode: str, eval_interval: int, train_fraction: float
+                           ) -> dict[str, int]:
+    """Image file path -> index among nerfstudio's training images, as its data parser splits a dataset: frames
+    sorted by file path, then the ``eval_mode`` split (``interval``: every ``eval_interval``-th is held out;
+    ``fraction``: ``round(linspace)`` of ``train_fraction``; ``all``: every frame trains). Other modes (e.g.
+    ``filename``) -> {} (corrections are then not applied)."""
+    order = sorted(range(len(names)), key=lambda i: names[i])
+    n = len(order)
+    if eval_mode == "interval":
+        train = [k for k in range(n) if k % max(1, int(eval_interval)) != 0]
+    elif eval_mode == "fraction":
+        count = math.ceil(n * float(train_fraction))
+        train = sorted(set(np.linspace(0, n - 1, count, dtype=int).tolist()))
+    elif eval_mode == "all":
+        train = list(range(n))
+    else:
+        return {}
+    return {names[order[k]]: j for j, k in enumerate(train)}
+
+
+def so3xr3(tangent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 6) tangents (translation, then so(3) log rotation) -> (K, 3, 3) rotations, (K, 3) translations:
+    nerfstudio's ``exp_map_SO3xR3`` (its angle floored at 1e-2 rad as nerfstudio does, float64 here)."""
+    log_rot = tangent[:, 3:]
+    angle = np.sqrt(np.maximum((log_rot ** 2).sum(1), 1e-4))
+    fac1, fac2 = np.sin(angle) / angle, (1.0 - np.cos(angle)) / angle ** 2
+    skew = np.zeros((len(tangent), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -log_rot[:, 2], log_rot[:, 1], -log_rot[:, 0]
+    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = log_rot[:, 2], -log_rot[:, 1], log_rot[:, 0]
+    rot = fac1[:, None, None] * skew + fac2[:, None, None] * skew @ skew + np.eye(3)[None]
+    return rot, tangent[:, :3].copy()
+
+
+def corrected_cameras(cameras, names: list[str], field) -> tuple:
+    """``cameras`` (the dataset's transforms.json frames ``names``, data frame) with the camera optimizer's pose
+    corrections of the frames nerfstudio trained on: in nerfstudio's frame the rotation becomes ``R_adj R`` and
+    the position ``p + t_adj`` (``CameraOptimizer.apply_to_camera``), here ``R^T R_adj R`` applied to the
+    data-frame axes and ``R^T t_adj / scale`` added to the centre. Returns (cameras, how many were corrected)."""
+    from neuras_distill.render.cameras import Cameras
+
+    adjust = getattr(field, "pose_adjustment", None)
+    index = training_frame_indices(names, *field.split) if adjust is not None else {}
+    rows = [(i, index[name]) for i, name in enumerate(names) if name in index and index[name] < len(adjust)]
+    if not rows:
+        return cameras, 0
+    rot_adj, t_adj = so3xr3(adjust[[j for _, j in rows]])
+    rot, scale = field._rotation64.numpy(), float(field.scale)
+    c2w = cameras.c2w.double().numpy().copy()
+    for (i, _), r, t in zip(rows, rot_adj, t_adj):
+        c2w[i, :3, :3] = rot.T @ r @ rot @ c2w[i, :3, :3]
+        c2w[i, :3, 3] = c2w[i, :3, 3] + rot.T @ t / scale
+    return Cameras(torch.as_tensor(c2w, dtype=torch.float32), cameras.fx, cameras.fy, cameras.cx, cameras.cy,
+                   cameras.width, cameras.height), len(rows)

@@ -3,13 +3,15 @@
 This module owns :class:`NerfstudioField` (the Field contract, docs/contract.md): :class:`.nerfacto.NerfactoNetwork`
 evaluated through the dataparser's transform, so the field, its box and the cameras are in the frame of the
 dataset's ``transforms.json`` (metric when the capture was): ``x_ns = scale * (R x + t)`` with ``[R | t]`` and
-``scale`` from ``dataparser_transforms.json``, directions ``d_ns = R d``, density ``sigma = scale * sigma_ns`` per
-data-frame unit. Without that file the field stays in nerfstudio's frame (``frame`` says which).
+``scale`` from ``dataparser_transforms.json`` (a run without it is refused), directions ``d_ns = R d``, density
+``sigma = scale * sigma_ns`` per data-frame unit.
 
 Foreground box: where the density exceeds :data:`BOX_DENSITY` (per nerfstudio unit) on a grid over the scene box
 [-1, 1]^3 (nerfstudio's frame), without floaters (connected blobs under :data:`FLOATER_MASS_FRACTION` of the
 largest blob's density mass), grown by one cell; ``--foreground-box`` overrides it. Density that touches the
-scene box's faces means content beyond it (the contracted region): ``unbounded``, the skybox path.
+scene box's faces, or fills a share of the contracted space beyond it, means content beyond the box:
+``unbounded``, and then ``far_region``, which the teacher marches out to nerfstudio's far plane (the skyboxes
+learn what it draws).
 
 Background: config.yml's ``background_color``: ``white`` / ``black`` are constants; ``random`` renders as black in
 nerfstudio's evaluation (no background is blended); ``last_sample`` (nerfacto's default) is the colour of the last
@@ -23,6 +25,7 @@ import numpy as np
 import torch
 
 from neuras_distill.errors import require
+from neuras_distill.render.far_region import FarRegion
 
 from .nerfacto import NerfactoNetwork
 from .run import NerfactoSettings, NerfstudioRun
@@ -31,13 +34,17 @@ from .run import NerfactoSettings, NerfstudioRun
 BOX_DENSITY = 1.0
 #: Connected blobs of such cells whose density mass is under this fraction of the largest blob's are floaters.
 FLOATER_MASS_FRACTION = 0.005
+#: The field holds far content (ground, buildings, sky beyond the scene box) when at least this share of a grid's
+#: cells over its contracted space beyond the box has density above BOX_DENSITY.
+FAR_CONTENT_FRACTION = 0.01
 _BOX_GRID = 96
 
 
 class NerfstudioField:
     """Field members: ``kind = "density"``, ``aabb`` (2, 3) data frame, ``geometry``, ``radiance``,
-    ``background_color`` or ``background``, ``unbounded``, ``default_cameras``, plus
-    ``frame`` ("data" or "nerfstudio"), ``settings``, ``notes``."""
+    ``background_color`` or ``background``, ``unbounded``, ``far_region`` (None without scene contraction),
+    ``default_cameras``, plus
+    ``frame`` ("data"), ``settings``, ``notes``."""
 
     kind = "density"
 
@@ -45,20 +52,14 @@ class NerfstudioField:
                  foreground_box=None):
         self.network = network
         self.settings = settings
+        self.pose_adjustment = None      # the camera optimizer's (K, 6) corrections, set by the adapter
         self.notes = list(settings.notes)
         if network.layout != "torch":
             self.notes.append(f"parameters in tiny-cuda-nn's layout, {network.layout}: evaluated in float32 here "
                               "(tcnn evaluates in half precision: values agree to about 1e-3 relative)")
-        if run.dataparser is not None:
-            self.frame = "data"
-            t = torch.as_tensor(run.dataparser["transform"], dtype=torch.float64)
-            self.scale = float(run.dataparser["scale"])
-        else:
-            self.frame = "nerfstudio"
-            t = torch.cat([torch.eye(3, dtype=torch.float64), torch.zeros(3, 1, dtype=torch.float64)], dim=1)
-            self.scale = 1.0
-            self.notes.append("no dataparser_transforms.json: the field is in nerfstudio's frame (not the "
-                              "dataset's, not metric)")
+        self.frame = "data"
+        t = torch.as_tensor(run.dataparser["transform"], dtype=torch.float64)
+        self.scale = float(run.dataparser["scale"])
         self.rotation = t[:, :3].float()
         self.translation = t[:, 3].float()
         self._rotation64, self._translation64 = t[:, :3], t[:, 3]
@@ -70,6 +71,15 @@ class NerfstudioField:
             self.foreground_reason = "--foreground-box"
         else:
             self.aabb, self.unbounded, self.foreground_reason = self._foreground()
+        # the space beyond the box, as nerfstudio's collider and proposal sampler see it (data-frame distances:
+        # nerfstudio's are ``scale`` times larger; its sampling turns to disparity one nerfstudio unit out), when
+        # the field holds content there: an untrained contracted space is a faint fog no capture constrained
+        if not settings.disable_scene_contraction and not self.unbounded and self._far_content():
+            self.unbounded = True
+            self.foreground_reason += "; density beyond the scene box (its contracted space): the far region"
+        self.far_region = (FarRegion(near=settings.near_plane / self.scale, far=settings.far_plane / self.scale,
+                                     pivot=1.0 / self.scale)
+                           if self.unbounded and not settings.disable_scene_contraction else None)
         background = settings.background_color
         if background in ("white", "black", "random"):
             self.background_color = torch.full((3,), 1.0 if background == "white" else 0.0)
@@ -113,6 +123,18 @@ class NerfstudioField:
 
         return orbit_framing(self.aabb, n, width, height)
 
+    @property
+    def split(self) -> tuple:
+        """(eval_mode, eval_interval, train_split_fraction) of the run's data parser."""
+        return self.settings.split
+
+    def corrected_cameras(self, cameras, names: list[str]):
+        """The dataset's cameras (``transforms.json`` frames ``names``) with the camera optimizer's pose corrections
+        of the frames nerfstudio trained on (:func:`.cameras.corrected_cameras`): (cameras, count corrected)."""
+        from .cameras import corrected_cameras
+
+        return corrected_cameras(cameras, names, self)
+
     def exported_cameras(self, path, width: int | None, height: int | None, focal: float | None):
         """The cameras of an ``ns-export cameras`` file (poses in nerfstudio's frame) in this field's frame, with
         the given image size and focal length in pixels (:func:`.cameras.exported_cameras`)."""
@@ -149,6 +171,20 @@ class NerfstudioField:
                      f"{100 * FLOATER_MASS_FRACTION:g}% of the largest one's density mass)" if dropped else "")
                   + ("; it reaches the box's faces: content beyond goes to the skyboxes" if touches else ""))
         return self.from_nerfstudio_box(lo.double(), hi.double()).float(), touches, reason
+
+    @torch.no_grad()
+    def _far_content(self) -> bool:
+        """Whether the contracted space beyond the scene box holds density: at least
+        :data:`FAR_CONTENT_FRACTION` of a grid's cells there above :data:`BOX_DENSITY` (nerfstudio frame)."""
+        r = _BOX_GRID // 2
+        axis = (torch.arange(r, dtype=torch.float32) + 0.5) / r * 4.0 - 2.0       # contracted coordinates
+        c = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
+        m = c.abs().amax(dim=-1, keepdim=True)
+        c = c[(m[:, 0] > 1.0) & (m[:, 0] < 2.0)]
+        m = c.abs().amax(dim=-1, keepdim=True)
+        x = c / m / (2.0 - m)                     # the inverse of x -> (2 - 1/|x|) x / |x| (L-infinity)
+        sigma = torch.cat([self.network.density(x[i:i + 2**16]) for i in range(0, x.shape[0], 2**16)])
+        return bool((sigma > BOX_DENSITY).float().mean() >= FAR_CONTENT_FRACTION)
 
     def __repr__(self) -> str:
         s = self.settings

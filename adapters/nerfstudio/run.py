@@ -1,7 +1,7 @@
 """A nerfstudio run folder: where its files are and what its ``config.yml`` says (docs/formats.md §3).
 
 This module owns :func:`find_run` (a ``config.yml``, its run folder or a checkpoint inside it -> the config, the
-newest ``nerfstudio_models/step-*.ckpt``, ``dataparser_transforms.json`` when present) and
+newest ``nerfstudio_models/step-*.ckpt``, ``dataparser_transforms.json``, which must be there) and
 :func:`nerfacto_settings` (the model section of ``config.yml`` -> :class:`NerfactoSettings`, with the defaults of
 the nerfstudio versions that lacked a key). ``config.yml`` is read with ``!!python/...`` tags as data
 (``adapters.yaml_text``): nothing in it is imported or run.
@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from neuras_distill.errors import BadInputError, require
+from neuras_distill.render.far_region import FarRegion
 
 from ..yaml_text import load_yaml
 
@@ -32,18 +33,19 @@ _STEP_RE = re.compile(r"^step-(\d+)\.ckpt$")
 @dataclass
 class NerfstudioRun:
     """The files of one run: ``config`` (the parsed config.yml), ``checkpoint`` (the newest step-*.ckpt),
-    ``dataparser`` (``{"transform": (3, 4), "scale": float}`` or None), ``folder``."""
+    ``dataparser`` (``{"transform": (3, 4), "scale": float}``), ``folder``."""
 
     folder: Path
     config_path: Path
     config: dict
     checkpoint: Path
-    dataparser: dict | None
+    dataparser: dict
 
 
 @dataclass
 class NerfactoSettings:
-    """The NerfactoField's hyper-parameters as the model section sets them (nerfstudio 1.1 names).
+    """The NerfactoField's hyper-parameters as the model section sets them (nerfstudio 1.1 names), the camera
+    optimizer's mode and the data parser's split (``(eval_mode, eval_interval, train_split_fraction)``).
 
     The field's own defaults apply to what the model config does not pass (``num_layers`` 2, ``num_layers_color``
     3, ``geo_feat_dim`` 15). Keys older configs lack take the value those versions used: ``implementation``
@@ -71,6 +73,8 @@ class NerfactoSettings:
     near_plane: float = 0.05
     far_plane: float = 1000.0
     scene_scale: float = 1.0
+    camera_optimizer: str = "off"
+    split: tuple = ("fraction", 8, 0.9)
     notes: list = field(default_factory=list)
 
 
@@ -99,6 +103,10 @@ def find_run(path) -> NerfstudioRun:
                              "every steps_per_save steps: let it run that long, or give the folder that has one")
         checkpoint = steps[-1][1]
     dataparser = read_dataparser_transforms(folder / "dataparser_transforms.json")
+    require(dataparser is not None,
+            f"{folder} has no dataparser_transforms.json: without it the field's frame, scale and far plane "
+            "cannot be placed against the dataset's cameras; nerfstudio writes it beside config.yml when training "
+            "starts: copy it from the run folder")
     return NerfstudioRun(folder, config_path, config, checkpoint, dataparser)
 
 
@@ -135,6 +143,7 @@ def nerfacto_settings(config: dict, source: str = "config.yml") -> NerfactoSetti
     for name in ("average_init_density", "near_plane", "far_plane"):
         if name in model:
             setattr(out, name, float(model[name]))
+    FarRegion(near=out.near_plane, far=out.far_plane, pivot=1.0)     # the collider's planes, nerfstudio units
     for name, default in (("implementation", "tcnn"), ("average_init_density", 1.0)):
         if name not in model:
             out.notes.append(f"config has no {name} (an older nerfstudio): {default!r} as that version used")
@@ -144,9 +153,16 @@ def nerfacto_settings(config: dict, source: str = "config.yml") -> NerfactoSetti
                 f"{source}: implementation {out.implementation!r} is neither 'tcnn' nor 'torch'")
     if "background_color" in model:
         out.background_color = str(model["background_color"])
-    parser = ((config.get("pipeline") or {}).get("datamanager") or {}).get("dataparser") or {}
+    datamanager = (config.get("pipeline") or {}).get("datamanager") or {}
+    parser = datamanager.get("dataparser") or {}
     if "scene_scale" in parser:
         out.scene_scale = float(parser["scene_scale"])
+    # the camera optimizer (the model's since nerfstudio 1.0, the data manager's before) and the data parser's
+    # train / eval split, which numbers its pose corrections
+    optimizer = model.get("camera_optimizer") or datamanager.get("camera_optimizer") or {}
+    out.camera_optimizer = str(optimizer.get("mode", "off")) if isinstance(optimizer, dict) else "off"
+    out.split = (str(parser.get("eval_mode", "fraction")), int(parser.get("eval_interval", 8) or 8),
+                 float(parser.get("train_split_fraction", 0.9)))
     return out
 
 

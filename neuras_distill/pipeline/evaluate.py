@@ -22,6 +22,10 @@ from .. import metrics
 from ..device import synchronize
 from ..render.cameras import Cameras
 
+#: A held-out pixel counts as inside the foreground box when the field's opacity there (the box's, as seen through
+#: what lies in front of it) is at least this; the rest is outside (the far region, or the background).
+INSIDE_BOX_OPACITY = 0.5
+
 
 @dataclass
 class FieldRenders:
@@ -156,9 +160,11 @@ def worst_window(error_map: np.ndarray, region: np.ndarray, size: int = 256, box
 
 def view_fidelity(bundle_image: np.ndarray, field_image: np.ndarray, opacity: np.ndarray,
                   coverage: np.ndarray, band: int | None = None) -> tuple[dict, np.ndarray]:
-    """Fidelity of one view: (H,W,3) bundle and field images, the field's (H,W) opacity and the bundle's (H,W)
-    bool coverage. Returns ({"flip", "psnr_interior", "psnr_silhouette", "hole_fraction", "crops"}, (H,W)
-    float32 FLIP map). Region PSNRs are None for an empty region; "crops" holds the windows
+    """Fidelity of one view: (H,W,3) bundle and field images, the field's (H,W) opacity (its foreground box's,
+    as seen) and the bundle's (H,W) bool coverage. Returns ({"flip", "psnr_inside_box", "psnr_outside_box",
+    "flip_inside_box", "flip_outside_box", "psnr_interior", "psnr_silhouette", "hole_fraction", "crops"},
+    (H,W) float32 FLIP map): inside the box = pixels whose field opacity inside the foreground box is at least
+    :data:`INSIDE_BOX_OPACITY`, outside = the rest (far ground, backdrop, sky or background). Region PSNRs are None for an empty region; "crops" holds the windows
     ``worst_window`` picks on the band ("a") and the interior ("b"), {"region", "box", "flip": the mean FLIP
     of the region's pixels in the window}; a view without pixels of a region has no crop for it."""
     mean_flip, flip_map = metrics.flip(bundle_image, field_image)
@@ -171,7 +177,12 @@ def view_fidelity(bundle_image: np.ndarray, field_image: np.ndarray, opacity: np
             x0, y0, cw, ch = box
             window = (slice(y0, y0 + ch), slice(x0, x0 + cw))
             crops[key] = {"region": name, "box": box, "flip": float(flip_map[window][region[window]].mean())}
+    inside = np.asarray(opacity) >= INSIDE_BOX_OPACITY
     return {"flip": mean_flip,
+            "psnr_inside_box": metrics.region_psnr(bundle_image, field_image, inside),
+            "psnr_outside_box": metrics.region_psnr(bundle_image, field_image, ~inside),
+            "flip_inside_box": float(flip_map[inside].mean()) if inside.any() else None,
+            "flip_outside_box": float(flip_map[~inside].mean()) if (~inside).any() else None,
             "psnr_interior": metrics.region_psnr(bundle_image, field_image, interior),
             "psnr_silhouette": metrics.region_psnr(bundle_image, field_image, band_mask),
             "hole_fraction": metrics.hole_fraction(opacity, coverage),
@@ -188,14 +199,16 @@ def fidelity(bundle_images: list[np.ndarray], field_images: list[np.ndarray], op
              coverages: list[np.ndarray], band: int | None = None) -> tuple[dict, list[np.ndarray]]:
     """``view_fidelity`` of every view, and means over views (means of per-view values; region PSNRs over the
     views where the region is not empty). Returns (report entries: flip, psnr_interior, psnr_silhouette,
-    hole_fraction, each with a ``_per_view`` list, silhouette_band_px, crops), [(H,W) float32 FLIP map]."""
+    hole_fraction, psnr_inside_box, psnr_outside_box, flip_inside_box, flip_outside_box, each with a
+    ``_per_view`` list, silhouette_band_px, crops), [(H,W) float32 FLIP map]."""
     per_view, maps = [], []
     for b, f, op, cov in zip(bundle_images, field_images, opacities, coverages):
         entry, flip_map = view_fidelity(b, f, op, cov, band)
         per_view.append(entry)
         maps.append(flip_map)
     out: dict = {}
-    for key in ("flip", "psnr_interior", "psnr_silhouette", "hole_fraction"):
+    for key in ("flip", "psnr_interior", "psnr_silhouette", "hole_fraction", "psnr_inside_box", "psnr_outside_box",
+                "flip_inside_box", "flip_outside_box"):
         values = [v[key] for v in per_view]
         out[key] = _mean(values)
         out[f"{key}_per_view"] = values

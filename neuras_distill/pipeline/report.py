@@ -29,6 +29,10 @@ def _db(x) -> str:
     return "n/a" if x is None else f"{x:.2f} dB"
 
 
+def _flip(x) -> str:
+    return "n/a" if x is None else f"{x:.4f}"
+
+
 def _fidelity_rows(rep: dict) -> list[tuple[str, str, str]]:
     """Rows of the summary table for FLIP, region PSNRs and holes (absent in reports without them)."""
     if "flip" not in rep:
@@ -36,6 +40,10 @@ def _fidelity_rows(rep: dict) -> list[tuple[str, str, str]]:
     return [("FLIP vs field (0 = same)", "reference", f"{rep['flip']:.4f}"),
             ("PSNR interior / silhouette", "reference",
              f"{_db(rep['psnr_interior'])} / {_db(rep['psnr_silhouette'])}"),
+            ("PSNR / FLIP inside the box", "reference",
+             f"{_db(rep.get('psnr_inside_box'))} / {_flip(rep.get('flip_inside_box'))}"),
+            ("PSNR / FLIP outside the box", "reference",
+             f"{_db(rep.get('psnr_outside_box'))} / {_flip(rep.get('flip_outside_box'))}"),
             ("holes (field opaque, no mesh)", "-", f"{100 * rep['hole_fraction']:.3f}% of pixels")]
 
 

@@ -59,6 +59,21 @@ def code_commit() -> str | None:
     return head.stdout.strip() + ("+dirty" if dirty else "")
 
 
+def field_summary(ctx: RunContext) -> dict:
+    """What the report says of the field: unbounded or not, the far region the teacher marched (its planes, its
+    samples per ray, and the share of the teacher's field evaluations spent there), the adapter's notes."""
+    field, renderer = ctx.field, ctx.volume_renderer
+    region = renderer.far_region
+    stats = renderer.stats
+    total = max(1, stats.get("geometry_points", 0))
+    return {"unbounded": bool(getattr(field, "unbounded", False)),
+            "far_region": ({"near": region.near, "far": region.far, "pivot": region.pivot,
+                            "far_steps": renderer.far_steps,
+                            "far_share_of_points": stats.get("far_points", 0) / total}
+                           if region is not None else None),
+            "notes": list(getattr(field, "notes", []) or [])}
+
+
 def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, inputs: ShaderInputs,
                  plan: TrainingPlan, training: TrainingViews, backdrop: Backdrop, distilled: DistilledModel, bundle: Bundle,
                  ev: Evaluation, *, stability: dict | None, source: dict | None, gl_info: dict | None,
@@ -129,6 +144,7 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "train_summary": {k: v for k, v in log.items() if k != "entries"},
         "views": {"train": len(train), "test": len(test), "train_resolution": [train.width, train.height]},
         "teacher_steps": cfg.teacher.num_steps,
+        "field": field_summary(ctx),
         "config": cfg.to_dict(),
         "source": source,
     }

@@ -103,6 +103,7 @@ def march_interval(field, region: FarRegion, step_s: float, o: torch.Tensor, d: 
         sigma[flat] = torch.nan_to_num(field.geometry(pts.float()).reshape(-1).float(), nan=0.0, posinf=0.0)
         if stats is not None:
             stats["geometry_points"] = stats.get("geometry_points", 0) + int(flat.numel())
+            stats["far_points"] = stats.get("far_points", 0) + int(flat.numel())
         tau = optical_depth(sigma.reshape(valid.shape), dt)
         w = trans[live, None] * torch.exp(-exclusive_cumsum(tau)) * -torch.expm1(-tau)
         sflat = torch.nonzero((w > min_weight).reshape(-1)).flatten()

@@ -101,7 +101,7 @@ class VolumeRenderer:
             if occupancy is None:
                 occupancy = OccupancyGrid.from_field(field, occupancy_resolution, step=self.step)
         self.occupancy: OccupancyGrid | None = occupancy.to(self.device) if occupancy is not None else None
-        self.stats = {"geometry_points": 0, "radiance_points": 0, "rays": 0}
+        self.stats = {"geometry_points": 0, "radiance_points": 0, "rays": 0, "far_points": 0}
         require(int(far_steps) >= 0, f"far_steps must be >= 0, got {far_steps}")
         self.far_steps = int(far_steps)
         region = getattr(field, "far_region", None)
