@@ -56,7 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
 
     p = sub.add_parser("from-synthetic", help="an embedded synthetic scene through the whole pipeline")
-    p.add_argument("name", help="scene name (bunny, bunny-matte, sphere, torus, street, gradient-ball, city, city-small)")
+    p.add_argument("name",
+                   help="scene name (bunny, bunny-matte, sphere, torus, street, gradient-ball, city, city-small)")
     p.add_argument("--kind", choices=["sdf", "density"], default=None,
                    help="field type of the scene (default: the scene's own, sdf; density for gradient-ball)")
     _add_run_options(p)
@@ -317,11 +318,10 @@ def _default_out(args) -> Path:
 def _distill_command(args) -> int:
     from pathlib import Path
 
-    from .pipeline.rundir import check_output_folder
-    from .pipeline.run import distill
-
     from .device import resolve_device
     from .parallel import check_nproc
+    from .pipeline.run import distill
+    from .pipeline.rundir import check_output_folder
 
     out = Path(args.out) if args.out else _default_out(args)
     check_output_folder(out.resolve())  # fail before any work
@@ -396,8 +396,8 @@ def _check(args) -> int:
 def _view(args) -> int:
     from pathlib import Path
 
-    from .errors import require
     from .bake.bundle import load_bundle
+    from .errors import require
 
     bundle = load_bundle(args.bundle)
     if args.orbit:

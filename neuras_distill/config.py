@@ -99,7 +99,8 @@ class GeometryConfig:
     """Where the fringe shell around a colour-level core comes from: "offset" (the core pushed out by the
     smallest of a series of distances that encloses the fringe, ``marching.offset_grid``) or "level" (the
     density's own lower levels, halving until they enclose it). A trained NeRF's fringe is speckle and its low
-    levels are fog, which a level shell draws as pale faceted shards (docs/decisions.md "The shell is the core pushed out")."""
+    levels are fog, which a level shell draws as pale faceted shards
+    (docs/decisions.md "The shell is the core pushed out")."""
     surface: SurfaceSource = "auto"
     """Where a density field's mesh comes from. "auto": its level set on the marching-cubes grid, meshed again
     from the surface depths fused over the training views when xatlas cannot unwrap that level set (a trained
@@ -307,7 +308,8 @@ class DistillConfig:
         _require_choice(t.view_dependence, Mode, "view_dependence")
         require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
         require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")
-        require(tr.time_budget_s >= 0, f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
+        require(tr.time_budget_s >= 0,
+                f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
         require(0.0 <= tr.budget_share <= 16.0,
                 f"train.budget_share must be in 0..16 (0: the default share), got {tr.budget_share}")
         require(0.0 < tr.lr <= 1.0 and 0.0 < tr.texture_lr_scale <= 100.0,

@@ -16,7 +16,6 @@ OpenGL, whichever device that is (``playback.context.gl_info``).
 from __future__ import annotations
 
 import copy
-
 import re
 from typing import Any
 

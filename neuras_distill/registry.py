@@ -67,7 +67,7 @@ def load_field(path, adapter: str | None = None, **options):
         require(adapter not in broken, f"adapter {adapter!r} is installed but fails to import ({broken.get(adapter)})")
         require(adapter in adapters, f"unknown adapter {adapter!r}; installed: {', '.join(sorted(adapters))}")
         return adapters[adapter]().load(path, **options)
-    for name, cls in adapters.items():
+    for cls in adapters.values():
         if cls().sniff(path):
             return cls().load(path, **options)
     raise BadInputError(f"{path} is not a checkpoint any installed adapter reads "

@@ -141,7 +141,10 @@ def test_readme_starts_with_the_install_demo_and_test_commands_ci_runs():
                         "bash scripts/setup.sh && .venv/bin/python -m pytest"]
     ci = [ln.strip() for ln in (ROOT / ".ci" / "run").read_text().splitlines() if ln.strip() and
           not ln.lstrip().startswith("#")]
-    assert ci[-2:] == commands[1].split(" && "), "CI must run the README's test command"
+    setup, test = commands[1].split(" && ")
+    assert ci[-1] == test and setup in ci, "CI must run the README's test command"
+    assert ci[ci.index(setup) + 1:-1] == [".venv/bin/ruff check neuras_distill adapters"], (
+        "CI lints the package with ruff between setup and the tests")
 
 
 def test_readme_is_short_and_its_results_come_from_results_md():

@@ -2,7 +2,8 @@
 
 ``sniff`` is :func:`.snapshot.sniff_snapshot` (docs/formats.md §1.1: magic bytes, then the root map's
 ``snapshot`` key in at most the first 64 KiB inflated; 3DGRUT's Gaussian-particle ``.ingp`` files have
-``nre_data`` instead and are not claimed). ``load`` returns an :class:`~.field.NgpField` in the frame of the user's transforms.json.
+``nre_data`` instead and are not claimed). ``load`` returns an :class:`~.field.NgpField` in the frame of the
+user's transforms.json.
 """
 
 from __future__ import annotations

@@ -194,7 +194,7 @@ class NgpField(torch.nn.Module):
         base = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
         occ = torch.zeros(base.shape[0], dtype=torch.bool)
         for s in sub:
-            occ |= evaluate_chunked(lambda b: self.occupied(lo + (b + s) * cell), base, chunk=2**20)
+            occ |= evaluate_chunked(lambda b, s=s: self.occupied(lo + (b + s) * cell), base, chunk=2**20)
         occ = occ.reshape(r, r, r)
         occ = torch.nn.functional.max_pool3d(occ[None, None].float(), 3, stride=1, padding=1)[0, 0] > 0
         return OccupancyGrid(self.aabb, occ)

@@ -154,7 +154,8 @@ def cameras_from_neus_npz(path, width: int | None = None, height: int | None = N
             k0, _, _ = decompose_projection(_as_matrix(data["world_mat_0"], "world_mat_0", path))
             raise BadInputError(
                 f"{path} does not store the image size; give it (CLI: --image-size WxH, Python: width=, "
-                f"height=; the training images' size in pixels; the principal point suggests about {2 * k0[0, 2] + 1:.0f}x{2 * k0[1, 2] + 1:.0f})")
+                f"height=; the training images' size in pixels; the principal point suggests about "
+                f"{2 * k0[0, 2] + 1:.0f}x{2 * k0[1, 2] + 1:.0f})")
         width = size[0] if width is None else width
         height = size[1] if height is None else height
     require(int(width) > 0 and int(height) > 0, f"image size must be positive, got {width}x{height}")

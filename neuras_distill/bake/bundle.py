@@ -48,8 +48,8 @@ import hashlib
 import io
 import json
 from dataclasses import dataclass, field
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image
@@ -376,7 +376,7 @@ def load_bundle(directory) -> Bundle:
     corrupt file."""
     d = Path(directory)
     if d.is_file():
-        from .gltf import read_bundle_files       # only for .glb files: the folder path never imports it
+        from .gltf import read_bundle_files  # only for .glb files: the folder path never imports it
 
         files = read_bundle_files(d)
         return _load_files(d, files.get, lambda name: name in files)

@@ -14,9 +14,10 @@ Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward 
 - the MLP unrolled as ``mat4 * vec4`` blocks with the weights as float literals (9 significant digits, so every
   literal is exactly the float32 weight); all-zero blocks are skipped; ReLU = max(x, 0), sigmoid = 1/(1+exp(-x));
 - the view direction ``normalize(v_world - u_cam_pos)`` only when the model uses it or the facing cosine
-  (otherwise the shader declares no ``u_cam_pos`` at all), in a vec4 whose w is the facing cosine ``|n . d|`` when the model uses
-  it (``MLPShader.use_facing``; n = ``normalize(v_normal)``, the interpolated vertex normal, as the G-buffer
-  hands torch in ``GBuffer.normal``: smooth across faces, where the face normal made a fringe's fade faceted).
+  (otherwise the shader declares no ``u_cam_pos`` at all), in a vec4 whose w is the facing cosine ``|n . d|`` when
+  the model uses it (``MLPShader.use_facing``; n = ``normalize(v_normal)``, the interpolated vertex normal, as the
+  G-buffer hands torch in ``GBuffer.normal``: smooth across faces, where the face normal made a fringe's fade
+  faceted).
 
 Unrolled mat4/vec4 arithmetic compiles in well under a second on Mesa llvmpipe and vectorises there.
 """
@@ -208,7 +209,8 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
     if use_facing:
         out.append("in vec3 v_normal;")
     if model.mesh_layers == 2:
-        out += ["#ifndef MESH_LAYER", f"#define MESH_LAYER {CORE_VARIANT}  // the shell's program: shader_variant(source, 1)",
+        out += ["#ifndef MESH_LAYER",
+                f"#define MESH_LAYER {CORE_VARIANT}  // the shell's program: shader_variant(source, 1)",
                 "#endif"]
     out += [
         "uniform usampler2DArray u_index;" if pages > 1 else "uniform usampler2D u_index;",

@@ -72,7 +72,8 @@ def _read_run(run: Path, need_command: bool = True) -> dict:
     require(report.get("version") == __version__ and (run / "work").is_dir() and "work_area" in report,
             f"{run} was made by neuras-distill {report.get('version', 'before 0.4')} without a stored work "
             f"area, which the bench distils its variants from; {again}")
-    require(bool(command) or not need_command, f"{run} was made from Python, so the bench cannot rebuild its field; call "
+    require(bool(command) or not need_command,
+            f"{run} was made from Python, so the bench cannot rebuild its field; call "
                            "neuras_distill.bench.bench(run, field=..., cameras=...) with the same field, or run it "
                            "with the neuras-distill command")
     require((run / "cameras.json").is_file(), f"{run} has no cameras.json; {again}")

@@ -42,7 +42,7 @@ def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, b
     stats ``mc_blocks``, ``mc_block_slices``, ``grid_nonfinite``, ``grid_seconds`` (sampling) and
     ``mc_cavity_voxels`` = None (not filled). Raises BadInputError when the lattice holds no surface at ``level``.
     """
-    from .marching import lattice_marching_cubes, nudge_level, signed_volume   # (marching imports this module)
+    from .marching import lattice_marching_cubes, nudge_level, signed_volume  # (marching imports this module)
 
     r0, r1, r2 = spec.shape
     per_block = max(1, int(block_points) // (r1 * r2))

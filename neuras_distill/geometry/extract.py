@@ -15,9 +15,9 @@ import numpy as np
 
 from ..errors import BadInputError
 from ..render.volume import FRINGE_OPACITY
+from .cleanup import clean_mesh, decimate_in_blocks, smooth_rough
 from .colour_level import termination_points
 from .depth_fusion import fused_depth_sdf
-from .cleanup import clean_mesh, decimate_in_blocks, smooth_rough
 from .marching import folded_fraction, marching_cubes_field
 from .mesh import MeshData
 from .unwrap import MAX_UNWRAP_FACES, UnwrapFailed, unwrap
@@ -42,9 +42,10 @@ def shell_budget(face_budget: int) -> int:
 #: tries, so those levels stay inside the fused values' range.
 FUSION_TRUNCATION_VOXELS = 6.0
 #: A density field's level set whose mesh misses more than this fraction of the opaque training pixels (teacher
-#: opacity >= 0.5, :data:`HOLE_INSET_PX` inside the opaque region, near the mesh's coverage) is perforated: the fused surface depths are meshed as well and the
-#: one that misses less is kept. The nerfstudio fixture's level set at ln2 / step missed most of the plate and
-#: half the bunny (11.5% holes, 15.4 dB); its fused depths: 0.7% holes, 30.0 dB.
+#: opacity >= 0.5, :data:`HOLE_INSET_PX` inside the opaque region, near the mesh's coverage) is perforated: the
+#: fused surface depths are meshed as well and the one that misses less is kept. The nerfstudio fixture's level set
+#: at ln2 / step missed most of the plate and half the bunny (11.5% holes, 15.4 dB); its fused depths: 0.7% holes,
+#: 30.0 dB.
 LEVEL_SET_MAX_MISSED = 0.02
 #: Pixels inside the opaque region that count for that test: holes, not the silhouette's rim.
 HOLE_INSET_PX = 2
@@ -280,8 +281,8 @@ def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float
                       page_size=page_size)
     stats = {k: v for k, v in surface.mesh.stats.items() if not k.startswith("uv_")}
     mesh.stats = {**stats, **mesh.stats}
-    mesh.stats.update(faces_final=mesh.num_faces, vertices_final=mesh.num_vertices, chart_count=mesh.stats.get("uv_charts"),
-                      seconds_unwrap=time.perf_counter() - t)
+    mesh.stats.update(faces_final=mesh.num_faces, vertices_final=mesh.num_vertices,
+                      chart_count=mesh.stats.get("uv_charts"), seconds_unwrap=time.perf_counter() - t)
     return mesh
 
 

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Sequence, TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 from scipy import ndimage
@@ -374,12 +374,13 @@ OFFSET_MIN_PART = 0.01
 
 def offset_grid(grid: np.ndarray, level: float, spacing, smooth_voxels: float = 1.0) -> np.ndarray:
     """(R0, R1, R2) float32 signed distance (world units, negative inside) to the region where the density
-    ``grid`` >= ``level`` (its connected parts of at least :data:`OFFSET_MIN_PART` of its volume), from Euclidean distance transforms of that mask and its complement (each measured
-    to the nearest voxel centre on the other side, so the zero crossing lies between the boundary voxels),
-    Gaussian-smoothed by ``smooth_voxels`` to take the voxel staircase out. Its level sets at a distance d are
-    the core pushed out by d and rounded: a shell that follows the core's shape, not the field's fog. A
-    trained NeRF's fringe is hash-grid speckle; its own low-density level sets were ragged blobs (the
-    Instant-NGP ball's shell: density / 70, 640k faces before decimation) that played as pale shards."""
+    ``grid`` >= ``level`` (its connected parts of at least :data:`OFFSET_MIN_PART` of its volume), from Euclidean
+    distance transforms of that mask and its complement (each measured to the nearest voxel centre on the other
+    side, so the zero crossing lies between the boundary voxels), Gaussian-smoothed by ``smooth_voxels`` to take the
+    voxel staircase out. Its level sets at a distance d are the core pushed out by d and rounded: a shell that
+    follows the core's shape, not the field's fog. A trained NeRF's fringe is hash-grid speckle; its own low-density
+    level sets were ragged blobs (the Instant-NGP ball's shell: density / 70, 640k faces before decimation) that
+    played as pale shards."""
     from scipy import ndimage
 
     spacing = tuple(float(x) for x in np.asarray(spacing, np.float64).reshape(3))
@@ -491,4 +492,5 @@ def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, 
     return mesh, levels[index]
 
 
-__all__ = ["offset_grid", "marching_cubes_field", "mesh_handles", "outward_levels", "marching_cubes_grid", "fill_cavities", "folded_fraction", "density_level", "nudge_level", "signed_volume"]
+__all__ = ["offset_grid", "marching_cubes_field", "mesh_handles", "outward_levels", "marching_cubes_grid",
+           "fill_cavities", "folded_fraction", "density_level", "nudge_level", "signed_volume"]

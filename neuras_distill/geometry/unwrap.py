@@ -326,7 +326,7 @@ def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNW
         vertices, faces, tile_map = _cut_into_tiles(vertices, faces, 1.0 / WEIGHTED_TILES)
     attempts = []
     result = None
-    for attempt, positions in enumerate((vertices, None)):
+    for positions in (vertices, None):
         if positions is None:
             positions = _jitter(vertices, faces)
         status, result = _run_in_child(positions, faces, options, timeout_s)

@@ -108,8 +108,9 @@ def _raycasting_scene(mesh: MeshData):
 
 def neighbour_cameras(cameras, distances: np.ndarray, margin_deg: float):
     """Cameras near the given ones: each turned by +-``margin_deg`` about its own up and right axes around
-    its look-at point (``distances[i]`` along its optical axis: the median first-hit distance of its rays). Cameras with an infinite distance (seeing
-    nothing) get no neighbours. Returns a ``Cameras`` (4 per usable camera, same intrinsics) or None."""
+    its look-at point (``distances[i]`` along its optical axis: the median first-hit distance of its rays).
+    Cameras with an infinite distance (seeing nothing) get no neighbours. Returns a ``Cameras`` (4 per usable camera,
+    same intrinsics) or None."""
     from ..render.cameras import Cameras
 
     poses, keep = [], []

@@ -20,11 +20,11 @@ import torch
 from scipy import ndimage
 from torch import nn
 
+from neuras_distill.config import TextureConfig
+from neuras_distill.errors import BadInputError
 from neuras_distill.neural.shader import MLPShader
 from neuras_distill.neural.texture import NeuralTexture, bilinear_corners
 from neuras_distill.neural.vq import VectorQuantizer
-from neuras_distill.config import TextureConfig
-from neuras_distill.errors import BadInputError
 
 #: The library's defaults are the configuration's (one place: ``config.py``).
 _TEXTURE = TextureConfig()
@@ -65,7 +65,8 @@ class NeuralTextureModel(nn.Module):
         use_vq: quantize features (required to bake atlases with more than 65535 texels).
         sparse_grad: texture gradients as sparse tensors (train the texture with SparseAdam).
         mesh_layers: 2 for a two-layer mesh (``MeshData.core_faces``): the core and the shell get a shader each
-            (same depth and inputs; the shell's width is ``shell_hidden``), picked per pixel by the layer column :func:`view_inputs` appends to ``dirs``.
+            (same depth and inputs; the shell's width is ``shell_hidden``), picked per pixel by the layer column
+            :func:`view_inputs` appends to ``dirs``.
             One shader for both cost the gradient ball's interior 4.6 dB on training views (41.3 vs 45.9 dB)
             and its silhouette band 2.9 dB: the shell's fade (surface colour to background with the angle) took
             the shared MLP's capacity. Both run at the same per-pixel cost (a uniform branch in GLSL).

@@ -69,4 +69,5 @@ class MLPShader(nn.Module):
 
     def weights(self) -> list[tuple]:
         """[(weight (out, in) float32 numpy, bias (out,) float32 numpy)] per layer, for baking."""
-        return [(l.weight.detach().float().cpu().numpy(), l.bias.detach().float().cpu().numpy()) for l in self.layers]
+        return [(layer.weight.detach().float().cpu().numpy(), layer.bias.detach().float().cpu().numpy())
+                for layer in self.layers]

@@ -43,11 +43,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from neuras_distill.config import TrainConfig
+from neuras_distill.errors import BadInputError
 from neuras_distill.neural.data_parallel import GradientExchange
 from neuras_distill.neural.losses import ssim
 from neuras_distill.neural.model import NeuralTextureModel
-from neuras_distill.config import TrainConfig
-from neuras_distill.errors import BadInputError
 
 #: The library's defaults are the configuration's (one place: ``config.py``).
 _TRAIN = TrainConfig()
@@ -114,7 +114,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     Args:
         uv: (N, H, W, 2) float32 G-buffer texture coordinates; coverage: (N, H, W) bool;
         dirs: (N, H, W, C) float32 view inputs, C = ``model.view_columns`` (unit directions, the facing cosine
-            when the shader uses it, the mesh layer with two layers: ``neural.model.view_inputs``); targets: (N, H, W, 3) float32 teacher colours.
+            when the shader uses it, the mesh layer with two layers: ``neural.model.view_inputs``);
+            targets: (N, H, W, 3) float32 teacher colours.
         steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
         lr: MLP and codebook learning rate; texture_lr_scale: the atlases (the mesh's and the skyboxes')
             learn at this multiple of lr.

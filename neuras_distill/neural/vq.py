@@ -154,9 +154,9 @@ class VectorQuantizer(nn.Module):
                   generator: torch.Generator | None = None) -> None:
         """k-means initialisation of the codebook from z (M, D) (a random sample of at most max_samples rows).
 
-        Seeds with k-means++ on at most 16*K rows (random rows with replacement when M < K, plus tiny jitter so codes differ),
-        then ``iters`` Lloyd iterations; empty clusters keep their previous centre. Runs on the host whatever
-        the codebook's device (the generator is a host one: the same codes on every device).
+        Seeds with k-means++ on at most 16*K rows (random rows with replacement when M < K, plus tiny jitter so
+        codes differ), then ``iters`` Lloyd iterations; empty clusters keep their previous centre. Runs on the host
+        whatever the codebook's device (the generator is a host one: the same codes on every device).
         """
         z = z.detach().float().cpu()
         if z.shape[0] == 0:

@@ -12,7 +12,6 @@ windows at native resolution: the silhouette-band and the interior area with the
 from __future__ import annotations
 
 import time
-
 from dataclasses import dataclass
 
 import numpy as np
@@ -164,9 +163,10 @@ def view_fidelity(bundle_image: np.ndarray, field_image: np.ndarray, opacity: np
     as seen) and the bundle's (H,W) bool coverage. Returns ({"flip", "psnr_inside_box", "psnr_outside_box",
     "flip_inside_box", "flip_outside_box", "psnr_interior", "psnr_silhouette", "hole_fraction", "crops"},
     (H,W) float32 FLIP map): inside the box = pixels whose field opacity inside the foreground box is at least
-    :data:`INSIDE_BOX_OPACITY`, outside = the rest (far ground, backdrop, sky or background). Region PSNRs are None for an empty region; "crops" holds the windows
-    ``worst_window`` picks on the band ("a") and the interior ("b"), {"region", "box", "flip": the mean FLIP
-    of the region's pixels in the window}; a view without pixels of a region has no crop for it."""
+    :data:`INSIDE_BOX_OPACITY`, outside = the rest (far ground, backdrop, sky or background). Region PSNRs are None
+    for an empty region; "crops" holds the windows ``worst_window`` picks on the band ("a") and the interior ("b"),
+    {"region", "box", "flip": the mean FLIP of the region's pixels in the window}; a view without pixels of a region
+    has no crop for it."""
     mean_flip, flip_map = metrics.flip(bundle_image, field_image)
     band_mask = metrics.silhouette_band(opacity, band)
     interior = metrics.interior_mask(opacity, band_mask)

@@ -87,7 +87,6 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
     """
     from ..device import resolve_device
     from ..fields.base import check_field
-
     from ..parallel import check_nproc
 
     device = resolve_device(device)
@@ -206,9 +205,13 @@ def _pick_cameras(field: Field, cameras, cfg: DistillConfig) -> tuple[Cameras, s
     return cameras, origin
 
 
+#: The default device of :func:`_run`: the host.
+_HOST = torch.device("cpu")
+
+
 def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool,
          stability: dict | None = None, cache: StageCache | None = None, keep_work: bool = True,
-         source: dict | None = None, device: torch.device = torch.device("cpu"),
+         source: dict | None = None, device: torch.device = _HOST,
          camera_origin: str = "given", pool=None) -> DistillResult:
     """The seven stages in order (``pipeline.stages``), then the report."""
     from ..playback.context import gl_info

@@ -13,8 +13,16 @@ import torch
 from .. import __version__
 from ..bake.bundle import Bundle
 from ..geometry.unwrap import atlas_shape
-from .stage_results import (Backdrop, CameraSplit, DistilledModel, Evaluation, GeometryResult, ShaderInputs,
-                            TrainingPlan, TrainingViews)
+from .stage_results import (
+    Backdrop,
+    CameraSplit,
+    DistilledModel,
+    Evaluation,
+    GeometryResult,
+    ShaderInputs,
+    TrainingPlan,
+    TrainingViews,
+)
 from .stages.context import RunContext
 
 
@@ -75,7 +83,8 @@ def field_summary(ctx: RunContext) -> dict:
 
 
 def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, inputs: ShaderInputs,
-                 plan: TrainingPlan, training: TrainingViews, backdrop: Backdrop, distilled: DistilledModel, bundle: Bundle,
+                 plan: TrainingPlan, training: TrainingViews, backdrop: Backdrop, distilled: DistilledModel,
+                 bundle: Bundle,
                  ev: Evaluation, *, stability: dict | None, source: dict | None, gl_info: dict | None,
                  device: torch.device | str = "cpu") -> dict:
     """``report.json`` without the timing of the whole run and the work area (``pipeline.run`` adds them)."""

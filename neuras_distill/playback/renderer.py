@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 
-from ..errors import BadInputError
 from ..bake.bundle import PAGED_TEXTURES, atlas_pages
+from ..errors import BadInputError
 from .context import get_context, moderngl_module, software_gl
 from .deferred import DeferredFrame, compute_supported
 from .projection import gl_matrix, mesh_bounds, near_far_for, projection_matrix, screen_box, view_matrix

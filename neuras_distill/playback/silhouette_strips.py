@@ -208,4 +208,5 @@ class SilhouetteEdges:
         return np.ascontiguousarray(quads.reshape(-1, 2), np.float32)
 
 
-__all__ = ["SilhouetteEdges", "STRIP_VERTEX_SHADER", "COPY_FRAGMENT_SHADER", "BLEND_RADIUS_PX", "TILE_PX", "MAX_TILED_EDGES"]
+__all__ = ["SilhouetteEdges", "STRIP_VERTEX_SHADER", "COPY_FRAGMENT_SHADER", "BLEND_RADIUS_PX", "TILE_PX",
+           "MAX_TILED_EDGES"]

@@ -47,12 +47,12 @@ from ..errors import require
 from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth, transmittance_from_alpha
 from .far_region import FarRegion, march_interval
 from .occupancy import OccupancyGrid, default_inv_s
+from .rays import ray_aabb
 
 #: Opacity at which a soft fringe starts (``fringe_depth``; the silhouette band of the metrics starts at 0.02,
 #: the fringe width and the shell's coverage check at 0.05).
 FRINGE_OPACITY = 0.05
 OUTPUTS = ("rgb", "depth", "surface_depth", "fringe_depth", "opacity")
-from .rays import ray_aabb
 
 _FAR_SDF = 1e3  # SDF value used for endpoints that were not evaluated (masked out anyway)
 

@@ -38,9 +38,24 @@ import math
 import torch
 
 from ..errors import require
-from .street import (CAR_BODY, CAR_CABIN, CAR_WHEEL, EYE_HEIGHT, FOV_DEG, PITCH_DEG, SLAB_BOTTOM, CURB_H,
-                     StreetField, _cyl, _lower_bound_mask, _rbox, _smoothstep, car_albedo,
-                     facade_albedo, shade_materials)
+from .street import (
+    CAR_BODY,
+    CAR_CABIN,
+    CAR_WHEEL,
+    CURB_H,
+    EYE_HEIGHT,
+    FOV_DEG,
+    PITCH_DEG,
+    SLAB_BOTTOM,
+    StreetField,
+    _cyl,
+    _lower_bound_mask,
+    _rbox,
+    _smoothstep,
+    car_albedo,
+    facade_albedo,
+    shade_materials,
+)
 
 BLOCK = 100.0              # side streets at x = 100 j
 CROSS_HALF = 7.0           # side-street road |x - 100 j| < 7

@@ -39,8 +39,8 @@ import torch.nn.functional as F
 from ..errors import BadInputError
 from ..fields.wrappers import SDFToDensityField
 from .analytic import SphereSDF, TorusSDF, orbit_framing
-from .gradient_ball import make_gradient_ball
 from .city import CITY_BETA, make_city, make_small_city
+from .gradient_ball import make_gradient_ball
 from .street import STREET_BETA, make_street
 
 BUNNY_OBJ = Path(__file__).resolve().parent.parent / "data" / "bunny.obj"

@@ -278,7 +278,8 @@ def _stiffness(c: _Ctx) -> tuple[Item, dict]:
                     {"teacher.num_steps": rec}), extra
     if needed > c.num_steps:
         return Item(name, c.kind, values, "adapted",
-                    f"stiff: {c.num_steps} steps skip surfaces (opacity error {errors.get(c.num_steps, float('nan')):.3f}"
+                    f"stiff: {c.num_steps} steps skip surfaces "
+                    f"(opacity error {errors.get(c.num_steps, float('nan')):.3f}"
                     f" > {OPACITY_TOL}); teacher.num_steps raised to {needed}",
                     {"teacher.num_steps": needed}), extra
     return Item(name, c.kind, values, "fine",
@@ -317,12 +318,14 @@ def _thin(c: _Ctx) -> Item:
         # a lattice misses most of such a part (the level set is a perforated foam): mesh what the training
         # views see instead (their surface depths, fused into a smooth SDF), at the configured grid
         return Item("geometry.thin", "geometry", values, "adapted",
-                    f"parts {thin:.3g} thin, below a voxel even at grid {cap} ({float(c.extent.max()) / (cap - 1):.3g}): "
+                    f"parts {thin:.3g} thin, below a voxel even at grid {cap} "
+                    f"({float(c.extent.max()) / (cap - 1):.3g}): "
                     "geometry.surface set to depths (the mesh is fused from the training views' surface depths; "
                     "a lattice would leave holes)", {"geometry.surface": "depths"})
     if need > cap:
         return Item("geometry.thin", "geometry", values, "adapted",
-                    f"parts {thin:.3g} thin, below a voxel even at grid {cap} ({float(c.extent.max()) / (cap - 1):.3g}): "
+                    f"parts {thin:.3g} thin, below a voxel even at grid {cap} "
+                    f"({float(c.extent.max()) / (cap - 1):.3g}): "
                     f"geometry.grid_resolution raised to {cap}; the mesh may still have holes there",
                     {"geometry.grid_resolution": cap})
     return Item("geometry.thin", "geometry", values, "adapted",

@@ -89,8 +89,8 @@ class RunContext:
         device: where the field, the teacher and training compute (``neuras_distill.device``); on a GPU
             ``field`` is replaced by a :class:`~neuras_distill.device.DeviceField` after the fingerprint (of the
             host field: the same keys on every device) is taken.
-        pool: a :class:`~neuras_distill.parallel.RenderPool` sharing the teacher's renders and training (``--nproc N``), or
-            None (one process).
+        pool: a :class:`~neuras_distill.parallel.RenderPool` sharing the teacher's renders and training
+            (``--nproc N``), or None (one process).
     """
 
     field: Field
@@ -115,8 +115,9 @@ class RunContext:
 
     @property
     def volume_renderer(self):
-        """The run's teacher :class:`~neuras_distill.render.volume.VolumeRenderer` (``teacher.num_steps``, ``teacher.far_steps``), built
-        once: its occupancy grid samples the field, which the cameras stage's probes and the teacher share."""
+        """The run's teacher :class:`~neuras_distill.render.volume.VolumeRenderer` (``teacher.num_steps``,
+        ``teacher.far_steps``), built once: its occupancy grid samples the field, which the cameras stage's probes
+        and the teacher share."""
         if self._volume_renderer is None:
             from ...render.volume import VolumeRenderer
 

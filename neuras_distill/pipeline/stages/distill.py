@@ -8,8 +8,15 @@ from ...neural.model import NeuralTextureModel
 from ...neural.train import fit
 from ...neural.train_checkpoint import TrainCheckpoint
 from ..cache import digest
-from ..stage_results import Backdrop, DistilledModel, ShaderInputs, TeacherResult, TrainedModel, TrainingPlan
-from ..stage_results import TrainingViews
+from ..stage_results import (
+    Backdrop,
+    DistilledModel,
+    ShaderInputs,
+    TeacherResult,
+    TrainedModel,
+    TrainingPlan,
+    TrainingViews,
+)
 from .context import RunContext, settings
 
 

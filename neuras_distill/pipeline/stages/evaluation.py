@@ -4,9 +4,8 @@ error against run time, and the lane-shifted views of scenes that define them.""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import time
+from typing import TYPE_CHECKING
 
 from ...bake.bundle import Bundle
 from ...playback.projection import shift_cameras

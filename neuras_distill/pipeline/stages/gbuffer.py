@@ -12,8 +12,15 @@ from ...playback.projection import shift_cameras
 from ...playback.rasterize import rasterize_gbuffer
 from .. import choices
 from ..cache import digest
-from ..stage_results import Backdrop, CameraSplit, GeometryResult, ShaderInputs, TeacherResult, TrainingViews
-from ..stage_results import load_gbuffer
+from ..stage_results import (
+    Backdrop,
+    CameraSplit,
+    GeometryResult,
+    ShaderInputs,
+    TeacherResult,
+    TrainingViews,
+    load_gbuffer,
+)
 from .context import RunContext
 
 
