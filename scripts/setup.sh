@@ -25,12 +25,16 @@ if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
   .venv/bin/python -m pip install -q "torch==2.13.0"
 fi
 .venv/bin/python -m pip install -q -e ".[test]"
-# the Khronos glTF-Validator (tests/test_gltf.py, scripts/gltf_validate.mjs) into .tools/ when node and npm exist
+# the Khronos glTF-Validator (tests/test_gltf.py, scripts/gltf_validate.mjs) and three.js (its GLTFLoader:
+# tests/test_gltf_viewers.py, scripts/gltf_three_render.html) into .tools/ when node and npm exist
 if command -v node >/dev/null 2>&1 && command -v npm >/dev/null 2>&1; then
   [ -d .tools/node_modules/gltf-validator ] \
     || npm install --silent --no-fund --no-audit --prefix .tools gltf-validator@2.0.0-dev.3.10 >/dev/null \
     || echo "setup: npm install gltf-validator failed; the glTF validation test will be skipped"
+  [ -f .tools/node_modules/three/build/three.module.js ] \
+    || npm install --silent --no-fund --no-audit --prefix .tools three@0.187.0 >/dev/null \
+    || echo "setup: npm install three failed; the three.js glTF test will be skipped"
 else
-  echo "setup: no node/npm; the glTF validation test will be skipped"
+  echo "setup: no node/npm; the glTF validation and three.js tests will be skipped"
 fi
 echo "setup: done (.venv ready)"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,83 @@ def require_gl() -> None:
     if os.environ.get("CI") == "true":
         pytest.fail(f"{message} (CI=true: the GL tests must run in CI)", pytrace=False)
     pytest.skip(message)
+
+
+def _require_tool(missing: str | None) -> None:
+    """Skip the calling test when an outside tool it drives is absent (``missing`` says which and how to install
+    it; None: present); with ``CI=true`` fail it instead: ``.ci/run`` installs every tool, so CI cannot pass by
+    skipping what it should have checked."""
+    if missing is None:
+        return
+    if os.environ.get("CI") == "true":
+        pytest.fail(f"{missing} (CI=true: .ci/run installs it, the test must run in CI)", pytrace=False)
+    pytest.skip(missing)
+
+
+@pytest.fixture(scope="session")
+def require_tool():
+    """:func:`_require_tool` for tests: ``require_tool(None if found else "X is absent (apt-get install x)")``."""
+    return _require_tool
+
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+
+
+def browser_missing() -> str | None:
+    """What is missing for the browser tests (selenium, Debian's chromium and chromedriver), or None."""
+    try:
+        import selenium  # noqa: F401
+    except ImportError:
+        return "selenium is not installed (pip install -e '.[test]')"
+    for path in (CHROMIUM, CHROMEDRIVER):
+        if not Path(path).exists():
+            return f"{path} is absent (apt-get install chromium chromium-driver; .ci/run does)"
+    return None
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """One headless Chromium (the system's, through selenium and the system chromedriver; WebGL2 on
+    SwiftShader) for every browser test of the run; skipped without it (failed under ``CI=true``)."""
+    _require_tool(browser_missing())
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--disable-extensions",
+                "--force-device-scale-factor=1", "--window-size=800,600"):
+        opts.add_argument(arg)
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+@pytest.fixture(scope="session")
+def http_root(tmp_path_factory):
+    """(folder, base URL): a local HTTP server over a fresh folder, for pages that fetch (modules, data)."""
+    import functools
+    import threading
+    from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+
+    root = tmp_path_factory.mktemp("site")
+
+    class Quiet(SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    httpd = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Quiet, directory=str(root)))
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield root, f"http://127.0.0.1:{httpd.server_address[1]}"
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
 
 
 @pytest.hookimpl(tryfirst=True)

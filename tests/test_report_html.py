@@ -17,7 +17,7 @@ import pytest
 from neuras_distill.bake.web import DATA_SCRIPT, MARKER
 from neuras_distill.pipeline.report import markdown, report_blocks
 from neuras_distill.pipeline.report_html import PLAYER_SRC, render_html
-from test_web import assert_matches_desktop, browser, wait_for_player  # noqa: F401  (browser: the fixture)
+from test_web import assert_matches_desktop, wait_for_player
 
 needs_gl = pytest.mark.gl  # tests/conftest.py: skipped without GL, failed under CI=true
 
@@ -105,7 +105,7 @@ def test_render_html_escapes_text_and_keeps_bold_spans(tmp_path):
 
 
 @needs_gl
-def test_report_html_from_a_file_url_shows_its_images_and_plays_camera_0(small_run, browser):  # noqa: F811
+def test_report_html_from_a_file_url_shows_its_images_and_plays_camera_0(small_run, browser):
     from neuras_distill.bake.bundle import load_bundle
     from neuras_distill.playback.renderer import BundleRenderer
     from neuras_distill.render.cameras import Cameras

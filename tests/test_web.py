@@ -19,15 +19,12 @@ only; the browser test compiles them (a compile error fails it with the info log
 from __future__ import annotations
 
 import base64
-import functools
 import io
 import json
 import math
 import shutil
-import threading
 import time
 from dataclasses import replace
-from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import numpy as np
@@ -48,8 +45,6 @@ from neuras_distill.playback.silhouette import SILHOUETTE_FRAGMENT_SHADER, SILHO
 from neuras_distill.render.cameras import Cameras
 from test_bake import make_model, quad_mesh
 
-CHROMIUM, CHROMEDRIVER = shutil.which("chromium") or "/usr/bin/chromium", shutil.which("chromedriver") or \
-    "/usr/bin/chromedriver"
 ORIGIN = np.array([1000.0, -20.0, 3.5])        # away from the world origin: the player must shift like the desktop
 MIN_PSNR = 40.0
 
@@ -301,54 +296,10 @@ def test_a_texture_that_cannot_fit_the_limit_exits_2_naming_it_and_writes_nothin
 
 
 # ------------------------------------------------------------------------------------------ the browser
-def _browser_reason() -> str | None:
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        return "selenium is not installed (pip install -e '.[test]')"
-    for path in (CHROMIUM, CHROMEDRIVER):
-        if not Path(path).exists():
-            return f"{path} is absent (apt-get install chromium chromium-driver; .ci/run does)"
-    return None
-
-
+# the browser and the HTTP server are tests/conftest.py's session-scoped fixtures ``browser`` and ``http_root``
 @pytest.fixture(scope="module")
-def browser():
-    reason = _browser_reason()
-    if reason:
-        pytest.skip(reason)
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--use-angle=swiftshader",
-                "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--disable-extensions",
-                "--force-device-scale-factor=1", "--window-size=800,600"):
-        opts.add_argument(arg)
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
-    try:
-        yield driver
-    finally:
-        driver.quit()
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    root = tmp_path_factory.mktemp("site")
-
-    class Quiet(SimpleHTTPRequestHandler):
-        def log_message(self, *args):
-            pass
-
-    httpd = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Quiet, directory=str(root)))
-    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
-    thread.start()
-    try:
-        yield root, f"http://127.0.0.1:{httpd.server_address[1]}"
-    finally:
-        httpd.shutdown()
-        httpd.server_close()
+def server(http_root):
+    return http_root
 
 
 def _play(browser, url: str, timeout: float = 120.0) -> np.ndarray:
