@@ -202,3 +202,20 @@ def test_the_texel_footprint_benchmark_reads_gl_level_of_detail():
     uv_across = uv.copy()
     uv_across[:, 6:, 0] += 0.5                           # a chart seam between the faces: not a uv step
     np.testing.assert_allclose(bench.level_of_detail(uv_across, face, 64, 256)[finite], 2.0, atol=1e-5)
+
+
+def test_scores_split_inside_and_outside_the_foreground_box():
+    """Inside the box = field opacity >= 0.5 there; an error only outside leaves the inside exact."""
+    opacity = np.zeros((32, 32), np.float32)
+    opacity[8:24, 8:24] = 1.0
+    rng = np.random.default_rng(2)
+    field = rng.uniform(0.2, 0.8, (32, 32, 3)).astype(np.float32)
+    bundle = field.copy()
+    bundle[opacity < 0.5] += 0.05                 # wrong only beyond the box (the far region)
+    entry, flip_map = evaluate.view_fidelity(bundle, field, opacity, opacity > 0.5)
+    assert entry["psnr_inside_box"] == metrics.MAX_PSNR
+    assert entry["psnr_outside_box"] == pytest.approx(-10 * np.log10(0.05 ** 2), abs=1e-3)
+    assert entry["flip_inside_box"] < entry["flip_outside_box"]
+    assert entry["flip_inside_box"] == pytest.approx(float(flip_map[opacity >= 0.5].mean()))
+    summary, _ = evaluate.fidelity([bundle], [field], [opacity], [opacity > 0.5])
+    assert summary["psnr_outside_box"] == entry["psnr_outside_box"] and summary["psnr_inside_box_per_view"]
