@@ -104,6 +104,17 @@ def http_root(tmp_path_factory):
         httpd.server_close()
 
 
+#: Fixtures that run a whole distillation (or more): a test using one is marked ``slow`` whether it says so or not,
+#: so the development loop ``pytest -m "not slow"`` never waits for one.
+DISTILLING_FIXTURES = frozenset({"small_run", "sky_run"})
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if DISTILLING_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
     """Every test marked ``gl`` goes through :func:`require_gl` before any of its fixtures is set up."""

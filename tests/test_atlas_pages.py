@@ -193,6 +193,7 @@ def test_a_page_size_out_of_range_is_refused():
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 def test_a_run_with_a_small_page_size_plays_its_atlas_in_pages(small_run, tmp_path, torch_threads):
     """conftest's small run (a 128² atlas) again with texture.page_size 64: the same charts at the same texels
     per unit in pages of 64², trained, baked and played as a texture array; as good as the one-atlas run."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 
 from neuras_distill.cli import main
 
@@ -33,6 +34,7 @@ def _one_line_error(result, fragment):
     assert fragment in lines[0]
 
 
+@pytest.mark.slow
 def test_foreign_output_folder_is_refused(tmp_path):
     foreign = tmp_path / "notes"
     foreign.mkdir()
@@ -42,12 +44,14 @@ def test_foreign_output_folder_is_refused(tmp_path):
     assert (foreign / "keep.txt").read_text() == "mine" and len(list(foreign.iterdir())) == 1
 
 
+@pytest.mark.slow
 def test_face_budget_zero(tmp_path):
     result = _run("demo", "--out", str(tmp_path / "r"), "--face-budget", "0", "--quiet")
     _one_line_error(result, "face budget")
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.slow
 def test_unknown_scene(tmp_path):
     result = _run("from-synthetic", "teapot-xl", "--out", str(tmp_path / "r"), "--quiet")
     _one_line_error(result, "teapot-xl")
@@ -61,6 +65,7 @@ def test_view_missing_bundle(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------------------------- check
+@pytest.mark.slow
 def test_check_synthetic_bunny_prints_table():
     result = _run("check", "synthetic:bunny")
     assert result.returncode == 0, result.stderr
@@ -69,6 +74,7 @@ def test_check_synthetic_bunny_prints_table():
         assert probe in result.stdout
 
 
+@pytest.mark.slow
 def test_check_stiff_shell_is_adapted(tmp_path):
     import json
 
@@ -82,6 +88,7 @@ def test_check_stiff_shell_is_adapted(tmp_path):
     assert stiff["values"]["sigma_delta_max"] > 1e3 and stiff["values"]["steps_needed"] == 1024
 
 
+@pytest.mark.slow
 def test_check_corrupt_checkpoint(tmp_path):
     bad = tmp_path / "scene.ingp"
     bad.write_bytes(bytes(range(256)) * 37)
@@ -89,6 +96,7 @@ def test_check_corrupt_checkpoint(tmp_path):
     _one_line_error(result, "scene.ingp")
 
 
+@pytest.mark.slow
 def test_check_refused_field_exits_2_with_the_reason():
     result = _run("check", "extreme:flipped-sign")
     _one_line_error(result, "cannot be distilled: sdf.sign: the SDF is negative outside")

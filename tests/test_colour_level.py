@@ -1,6 +1,7 @@
 """The core level of a soft density fringe: where the training rays terminate (geometry/colour_level.py)."""
 
 import numpy as np
+import pytest
 import torch
 
 from neuras_distill.geometry.colour_level import colour_level, termination_points
@@ -62,6 +63,7 @@ class SoftBall:
         return torch.full_like(x, 0.5)
 
 
+@pytest.mark.slow
 def test_termination_points_lie_where_the_rays_reach_half_opacity_and_the_core_among_them():
     field = SoftBall()
     cams = Cameras.orbit((0, 0, 0), 1.5, 6, width=40, height=40, fov_deg=35.0, elevation_deg=(-30.0, 40.0))

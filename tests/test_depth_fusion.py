@@ -2,6 +2,7 @@
 set full of unsupervised interior foam."""
 
 import numpy as np
+import pytest
 import torch
 
 from neuras_distill.geometry.depth_fusion import fused_depth_sdf
@@ -42,6 +43,7 @@ def _views(field, n=12, size=48):
     return cams, np.stack([o["surface_depth"] for o in outs]), np.stack([o["opacity"] for o in outs])
 
 
+@pytest.mark.slow
 def test_surface_depth_is_where_opacity_reaches_half():
     cams, depth, opacity = _views(FoamBall(), n=1, size=16)
     centre = depth[0, 8, 8]
@@ -51,6 +53,7 @@ def test_surface_depth_is_where_opacity_reaches_half():
     assert (depth[opacity < 0.5] == 0).all()
 
 
+@pytest.mark.slow
 def test_fused_depth_meshes_the_seen_surface_without_the_interior_foam():
     field = FoamBall()
     foam = marching_cubes_field(field, 48)
@@ -70,6 +73,7 @@ def test_fused_depth_meshes_the_seen_surface_without_the_interior_foam():
     assert stats["fused_hidden_fraction"] > 0.01                               # the core, deeper than the truncation
 
 
+@pytest.mark.slow
 def test_marching_cubes_meshes_the_fused_surface_when_asked():
     field = FoamBall()
     cams, depth, opacity = _views(field)
@@ -105,6 +109,7 @@ def _extract(field, monkeypatch, fail_first_unwrap: bool):
     return mesh, calls
 
 
+@pytest.mark.slow
 def test_a_level_set_that_unwraps_is_kept(monkeypatch):
     from neuras_distill.scenes.analytic import SphereSDF
 
@@ -113,6 +118,7 @@ def test_a_level_set_that_unwraps_is_kept(monkeypatch):
     assert mesh.stats["mc_density_handles"] == 0
 
 
+@pytest.mark.slow
 def test_a_level_set_xatlas_cannot_unwrap_is_meshed_from_the_depth_maps(monkeypatch):
     from neuras_distill.scenes.analytic import SphereSDF
 
@@ -124,6 +130,7 @@ def test_a_level_set_xatlas_cannot_unwrap_is_meshed_from_the_depth_maps(monkeypa
     assert np.percentile(r, 5) > RADIUS - 0.05 and mesh.uvs is not None
 
 
+@pytest.mark.slow
 def test_a_foam_level_set_is_meshed_from_the_depth_maps_before_any_unwrap(monkeypatch):
     """The foam ball's level set (pores in its crust, a labyrinth inside) is judged before it is unwrapped:
     the fused depths replace it and only they are unwrapped."""
@@ -136,6 +143,7 @@ def test_a_foam_level_set_is_meshed_from_the_depth_maps_before_any_unwrap(monkey
     assert np.percentile(r, 5) > RADIUS - 0.05 and mesh.uvs is not None
 
 
+@pytest.mark.slow
 def test_a_tangled_level_set_is_meshed_from_the_depth_maps(monkeypatch):
     """A decimated level set whose core is tangled (over ``TANGLED_FOLDED_FRACTION`` of its adjacent faces
     folded: simulated here on the sphere's level set) is meshed again from the fused depths, which are kept

@@ -64,11 +64,13 @@ def _one_line_exit_2(args, tmp_path):
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+@pytest.mark.slow
 def test_cli_cuda_on_a_machine_without_cuda_exits_2_with_one_line(tmp_path):
     line = _one_line_exit_2(["from-synthetic", "sphere", "--device", "cuda"], tmp_path)
     assert "device 'cuda'" in line and "--device cpu" in line
 
 
+@pytest.mark.slow
 def test_cli_a_device_that_is_not_one_exits_2(tmp_path):
     line = _one_line_exit_2(["demo", "--device", "gpu0"], tmp_path)
     assert "'gpu0' is not a device" in line

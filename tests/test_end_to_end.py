@@ -147,6 +147,7 @@ def test_field_without_surface_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_soft_fringe_gets_a_shell_and_the_facing_input(two_torch_threads):
     """The gradient ball's fringe is many pixels wide: the mesh moves out until it covers the field's partly
     opaque pixels, the shader gets |n . d| (and the shell's shader the view direction; the core's drops it, the

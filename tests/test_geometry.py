@@ -271,6 +271,7 @@ class CarOnRoadSDF:
         return torch.minimum(x[:, 2], box)
 
 
+@pytest.mark.slow
 def test_decimate_keeps_small_features_on_large_meshes():
     """The planar quadric's weight shrinks for fine meshes (cleanup.planar_weight): at pymeshlab's fixed 1e-3
     the car is flattened into the road on a mesh 1/1000 of a voxel fine, with the scaled weight it stands."""

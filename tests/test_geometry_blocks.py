@@ -72,6 +72,7 @@ def test_a_lattice_without_surface_is_refused():
         marching_cubes_blocks(lambda x: x.norm(dim=-1) + 5.0, spec, 0.0, outside=10.0, block_points=17 * 17 * 4)
 
 
+@pytest.mark.slow
 def test_decimation_in_blocks_gives_a_closed_mesh_on_the_surface_within_budget():
     """Two spheres meshed at 160 (about 180k faces) decimated to 4000 faces whole and in 4 blocks: both closed,
     within the budget, and as close to the true surface (the SDF at the vertices)."""

@@ -102,6 +102,7 @@ def test_unsupported_methods_are_named(tmp_path):
         nerfacto_settings(load_yaml(text, "x", python_tags=True))
 
 
+@pytest.mark.slow
 def test_our_field_matches_nerfstudios_own_evaluation():
     """Must-show: max relative error <= 1e-3 on density where it is > 1e-2, <= 5e-3 on colour."""
     field = NerfstudioAdapter().load(RUN)
@@ -116,6 +117,7 @@ def test_our_field_matches_nerfstudios_own_evaluation():
     assert np.abs(rgb - ref["rgb"]).max() <= 5e-3
 
 
+@pytest.mark.slow
 def test_the_field_is_in_the_datasets_frame():
     field = NerfstudioAdapter().load(RUN)
     dp = json.loads((RUN / "dataparser_transforms.json").read_text())
@@ -136,6 +138,7 @@ def test_the_field_is_in_the_datasets_frame():
     assert not field.unbounded and torch.equal(field.background_color, torch.ones(3))
 
 
+@pytest.mark.slow
 def test_the_registry_finds_the_run_by_content():
     assert NerfstudioAdapter().sniff(RUN / "config.yml") and NerfstudioAdapter().sniff(RUN)
     assert not NerfstudioAdapter().sniff(RUN / "transforms.json")
@@ -269,6 +272,7 @@ def test_a_tcnn_checkpoint_that_does_not_match_its_config_is_refused():
         NerfactoNetwork(state, s)
 
 
+@pytest.mark.slow
 def test_a_run_configured_for_tcnn_but_trained_without_it_reads_as_torch(tmp_path):
     """nerfstudio falls back to its torch modules when tiny-cuda-nn is missing: the keys decide the layout."""
     run = _copy_run(tmp_path)
@@ -283,6 +287,7 @@ def test_a_run_configured_for_tcnn_but_trained_without_it_reads_as_torch(tmp_pat
     assert np.max(np.abs(sigma[dense] - ref["density"][dense]) / ref["density"][dense]) < 1e-3
 
 
+@pytest.mark.slow
 def test_cli_bad_runs_exit_2_with_one_line(tmp_path):
     (tmp_path / "notes").mkdir()
     (tmp_path / "notes" / "config.yml").write_text("a: 1\n")
@@ -295,6 +300,7 @@ def test_cli_bad_runs_exit_2_with_one_line(tmp_path):
         assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 def test_runs_the_teacher_cannot_place_exit_2_with_one_line(tmp_path):
     """No dataparser_transforms.json (no frame, scale or far plane), and a far plane float32 cannot resolve
     against the scene: one line each, exit 2, no run folder."""
@@ -313,6 +319,7 @@ def test_runs_the_teacher_cannot_place_exit_2_with_one_line(tmp_path):
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 def test_a_nerfacto_run_distills_end_to_end(tmp_path):
     """The fixture through every stage on ten of its dataset's cameras (small sizes; the full-size run is in the
     README): the bundle plays and scores against the field."""
@@ -333,6 +340,7 @@ def test_a_nerfacto_run_distills_end_to_end(tmp_path):
     assert rep["views"]["test"] == 2 and (tmp_path / "run" / "bundle" / "manifest.json").is_file()
 
 
+@pytest.mark.slow
 def test_ns_export_camera_files_are_moved_into_the_datasets_frame(tmp_path):
     """``ns-export cameras`` writes poses in nerfstudio's frame without intrinsics: with --image-size and --focal
     they become the dataset's cameras again."""

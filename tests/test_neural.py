@@ -268,6 +268,7 @@ def test_fit_reaches_psnr_on_smooth_target():
     assert not model.training
 
 
+@pytest.mark.slow
 def test_fit_quantizes_after_training_by_default():
     """Default schedule: continuous features all along, k-means codes after the last step. On the same data
     and seed it beats quantizing from 15 % of the run (measured 33.7 vs 29.7 dB with 64 codes), and the code

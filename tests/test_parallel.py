@@ -94,6 +94,7 @@ def test_a_field_that_cannot_be_sent_is_refused():
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 def test_cli_nproc_runs_and_refuses(tmp_path, capsys):
     from neuras_distill.cli import main
 
@@ -130,6 +131,7 @@ def _trained_together(nproc: int, **kwargs):
     return model, log, start
 
 
+@pytest.mark.slow
 def test_two_processes_train_the_model_one_process_trains():
     """Data-parallel fit: each rank computes half of every batch, gradients (the atlas's sparse rows included)
     are summed, so 2 gloo processes end with 1 process's model up to the order of float additions (stated
@@ -150,6 +152,7 @@ def test_two_processes_train_the_model_one_process_trains():
     assert abs(log1.entries[-1]["loss"] - log2.entries[-1]["loss"]) < 1e-4   # the logged loss is the whole batch's
 
 
+@pytest.mark.slow
 def test_two_processes_under_quantized_training_stay_close():
     """Quantized from mid-run (vq_warmup 0.5), dead codes restart from each rank's own samples, so the models
     are no longer equal to one process's; their PSNR on the training data stays within 1 dB of it."""

@@ -31,6 +31,7 @@ def _grids(field) -> list[HashGridEncoding]:
     return [m for m in _modules(field, set()) if isinstance(m, HashGridEncoding)]
 
 
+@pytest.mark.slow
 def test_the_fp16_teacher_matches_fp32_within_the_stated_tolerance():
     field = load_field(BALL)
     cams = orbit_framing(field.aabb, 2, 64, 64)
@@ -48,6 +49,7 @@ def test_the_fp16_teacher_matches_fp32_within_the_stated_tolerance():
     assert all(g.params.dtype == torch.float32 for g in _grids(field))
 
 
+@pytest.mark.slow
 def test_half_tables_converts_every_hash_grid_and_nerfstudios_table():
     from adapters.nerfstudio.adapter import NerfstudioAdapter
 

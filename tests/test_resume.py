@@ -15,7 +15,7 @@ import time
 import pytest
 
 
-pytestmark = [pytest.mark.gl]
+pytestmark = [pytest.mark.gl, pytest.mark.slow]
 
 #: Small enough for the suite, long enough in training (a few seconds) to be killed in it.
 CONFIG = """

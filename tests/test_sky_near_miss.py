@@ -4,6 +4,7 @@ which pixels they are (``decisions.near_miss_pixels``) and what leaving them out
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from neuras_distill.neural.model import NeuralTextureModel
@@ -54,6 +55,7 @@ def _train_sky(sky_pixels):
     return rgb
 
 
+@pytest.mark.slow
 def test_a_skybox_left_out_of_near_misses_keeps_the_sky_there():
     near = np.zeros((1, 16, 16), bool)
     near[0, 4:10, 6:9] = True

@@ -64,6 +64,7 @@ def test_skyboxes_play_as_trained_and_are_worth_it(sky_run):
     assert rep["ablation"]["drop_db"] >= 2.0, rep["ablation"]
 
 
+@pytest.mark.slow
 def test_skybox_that_does_not_enclose_the_cameras_is_refused(tmp_path):
     field = SkySphere(center=(0.0, 0.0, 0.0), radius=0.5)
     cams = field.default_cameras(6, 48, 32)

@@ -208,6 +208,7 @@ def test_chunk_size_does_not_change_result(sphere_renders):
         assert np.abs(img[key] - ref[key]).max() < 2e-4, key
 
 
+@pytest.mark.slow
 def test_rounds_grow_as_rays_finish(sphere_renders):
     """Most rays stop at the sphere after a few segments; the few that pass beside it march the whole box in
     longer rounds (same samples per round), not in ``segment``-step rounds: the picture is unchanged."""

@@ -179,6 +179,7 @@ def _expected(bundle_dir: Path, cams: Cameras, index: int, mode: str = "neural",
     ("skybox", ("--no-skybox",), 0, "neural", False),
     ("plain", ("--mode", "plain"), 0, "plain", True),
 ])
+@pytest.mark.slow
 def test_window_screenshot_is_the_renderers_frame(runs, tmp_path, kind, args, index, mode, skybox):
     bundle_dir, cams = runs[kind]
     shot = tmp_path / "w.png"
@@ -193,6 +194,7 @@ def test_window_screenshot_is_the_renderers_frame(runs, tmp_path, kind, args, in
 
 @needs_gl
 @needs_xvfb
+@pytest.mark.slow
 def test_window_modes_differ_from_the_neural_shader(runs, tmp_path):
     bundle_dir, _ = runs["plain"]
     shots = {}
@@ -232,6 +234,7 @@ print(out)
 
 @needs_gl
 @needs_xvfb
+@pytest.mark.slow
 def test_window_keys_switch_modes_skybox_and_cameras(runs):
     proc = subprocess.run([XVFB_RUN, "-a", sys.executable, "-c", KEYS_SCRIPT, str(runs["plain"][0])],
                           capture_output=True, text=True, timeout=240)
@@ -245,6 +248,7 @@ def test_window_keys_switch_modes_skybox_and_cameras(runs):
     assert "| index |" in out["title"] and "ms/frame" in out["title"] and "sky off" in out["title"]
 
 
+@pytest.mark.slow
 def test_view_without_a_display_says_how_to_get_one(runs, tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     shot = tmp_path / "w.png"
@@ -260,12 +264,14 @@ def test_view_without_a_display_says_how_to_get_one(runs, tmp_path):
     (("--camera", "7"), "out of range"),
     (("--screenshot", "w.jpg"), "give a .png path"),
 ])
+@pytest.mark.slow
 def test_view_bad_options_exit_2(runs, tmp_path, args, message):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     proc = _view(runs["two-layer"][0], *args, env=env)       # refused before any window opens
     assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
 
 
+@pytest.mark.slow
 def test_view_refuses_a_foreign_cameras_json(runs, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(runs["two-layer"][0], run / "bundle")

@@ -53,6 +53,7 @@ def test_solid_stiff_is_fine():
 @S(case="thin NeuS plate inv_s=1e5: zero crossing between lattice points", family="check",
    reference="plate 0.003 thick, lattice cell 0.0031: found by the probe rays; mesh grid raised above 1/thickness",
    tolerance="surface fine; geometry.grid_resolution >= 1 / 0.003 and the mesh at that grid exists")
+@pytest.mark.slow
 def test_sharp_plate():
     report = probe_field(make_extreme("sharp-plate"))
     assert report.item("surface.present").verdict == "fine"
