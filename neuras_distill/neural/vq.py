@@ -154,9 +154,11 @@ class VectorQuantizer(nn.Module):
                   generator: torch.Generator | None = None) -> None:
         """k-means initialisation of the codebook from z (M, D) (a random sample of at most max_samples rows).
 
-        Seeds with k-means++ on at most 16*K rows (random rows with replacement when M < K, plus tiny jitter so
-        codes differ), then ``iters`` Lloyd iterations; empty clusters keep their previous centre. Runs on the host
-        whatever the codebook's device (the generator is a host one: the same codes on every device).
+        Seeds with k-means++ on at most 16*K rows (when M < K: every row its own code, the K - M others copies of
+        random rows with a tiny jitter, so that every texel keeps its own value: drawing all K with replacement
+        left 444 of 1000 texels sharing a code with 1024 codes), then ``iters`` Lloyd iterations; empty clusters
+        keep their previous centre. Runs on the host whatever the codebook's device (the generator is a host one:
+        the same codes on every device).
         """
         z = z.detach().float().cpu()
         if z.shape[0] == 0:
@@ -167,7 +169,7 @@ class VectorQuantizer(nn.Module):
         if m >= k:
             centres = self._kmeans_pp(z[torch.randperm(m, generator=generator)[:16 * k]], k, generator)
         else:
-            centres = z[torch.randint(0, m, (k,), generator=generator)].clone()
+            centres = torch.cat([z, z[torch.randint(0, m, (k - m,), generator=generator)]])
             scale = z.std(dim=0, keepdim=True).clamp_min(1e-6) * 1e-3
             centres[m:] += torch.randn(k - m, z.shape[1], generator=generator) * scale
         for _ in range(iters):

@@ -6,10 +6,13 @@ This module owns :class:`OccupancyGrid`: a (R, R, R) bool grid of cells over the
 * SDF fields: a cell is occupied when ``|sdf(cell centre)| < cell half-diagonal + margin``; the default
   margin covers the width of the NeuS opacity ramp (``12 / inv_s``) plus one ray step, so skipping
   unoccupied cells changes no rendered value by more than ~1e-4.
-* density fields: a cell is occupied when the max σ over a few jittered samples in it exceeds
-  ``threshold``; the result is dilated by one cell so thin shells between samples are not lost.
+* density fields: a cell is occupied when its optical depth, the max σ over a few jittered samples in it times
+  the cell's diagonal (the longest path through it), exceeds ``threshold``; the result is dilated by one cell
+  so thin shells between samples are not lost. An optical depth, not σ: an absolute σ threshold dropped every
+  cell of a thin medium kilometres across (σ = 1e-3 over 2 km, opacity 0.86, rendered empty).
 
-Points outside the aabb are reported empty (the renderer never samples there).
+Points outside the aabb are reported empty (the renderer never samples there); points on a face of the box,
+the max faces included (and within :data:`FACE_SNAP` cells of it), belong to the cell inside it.
 """
 
 from __future__ import annotations
@@ -78,25 +81,29 @@ class OccupancyGrid:
 
     def query_rays(self, origins: torch.Tensor, dirs: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """Occupancy of the points ``origins[a] + t[a, k] * dirs[a]``: origins, dirs (A, 3), t (A, K)
-        -> (A, K) bool. Cheaper than :meth:`query` (no (A, K, 3) tensor is built)."""
+        -> (A, K) bool. Cheaper than :meth:`query` (no (A, K, 3) tensor is built). For points on the rays'
+        chords through the box (the renderer's samples): they are clamped into the grid, so a point on a face
+        or rounded just past it reads the cell inside (a ray lying in a max face read the padding: opacity 0)."""
         inv = 1.0 / self.cell
         a = (origins.float() - self.aabb[0]) * inv  # (A, 3) in cell units
         b = dirs.float() * inv
-        return self._lookup(*(torch.addcmul(a[:, k:k + 1], t, b[:, k:k + 1]) for k in range(3)))
+        return self._lookup(*(torch.addcmul(a[:, k:k + 1], t, b[:, k:k + 1]) for k in range(3)), clamp=True)
 
-    def _lookup(self, rx: torch.Tensor, ry: torch.Tensor, rz: torch.Tensor) -> torch.Tensor:
-        """Occupancy at continuous cell coordinates (any shape; cell i spans [i, i + 1))."""
+    def _lookup(self, rx: torch.Tensor, ry: torch.Tensor, rz: torch.Tensor, clamp: bool = False) -> torch.Tensor:
+        """Occupancy at continuous cell coordinates (any shape; cell i spans [i, i + 1), the last cell
+        [R - 1, R]): :func:`_cell_index`, or with ``clamp`` every point in its nearest cell."""
         px, py, pz = self._pshape
-        ix = (rx.clamp(-1.0, px - 2.0).floor_() + 1.0).mul_(py)
-        iy = ry.clamp(-1.0, py - 2.0).floor_() + 1.0
-        iz = rz.clamp(-1.0, pz - 2.0).floor_() + 1.0
+        index = _clamped_index if clamp else _cell_index
+        ix = (index(rx, px - 2) + 1.0).mul_(py)
+        iy = index(ry, py - 2) + 1.0
+        iz = index(rz, pz - 2) + 1.0
         flat = ix.add_(iy).mul_(pz).add_(iz)
         return self._padded[flat.long()]
 
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_field(cls, field, resolution: int = 128, *, margin: float | None = None,
-                   threshold: float = 0.01, samples_per_cell: int = 2, step: float | None = None,
+                   threshold: float = 1e-4, samples_per_cell: int = 2, step: float | None = None,
                    chunk: int = 2**18, seed: int = 0) -> "OccupancyGrid":
         """Build the grid from ``field`` (kind ``"sdf"`` or ``"density"``).
 
@@ -104,7 +111,9 @@ class OccupancyGrid:
             resolution: cells per axis R (cubic grid; cells are boxes of size aabb_extent / R).
             margin: SDF only: extra distance (world units) beyond the cell half-diagonal; default
                 ``12 / inv_s + step`` (inv_s defaulting as in the renderer).
-            threshold: density only: σ above which a cell is occupied (σ·δ = 1e-4 at δ = 0.01).
+            threshold: density only: optical depth (max σ times the cell diagonal) above which a cell is
+                occupied. 1e-4: a unit box at the default resolution skips σ below 0.0074 (an absolute σ of
+                0.01 before), a 2 km one σ below 3.7e-6.
             samples_per_cell: density only: jittered samples per cell (max taken).
             step: the ray step the renderer will use (widens the SDF margin); default aabb diagonal / 256.
         """
@@ -114,6 +123,7 @@ class OccupancyGrid:
         extent = aabb[1] - aabb[0]
         cell = extent / r
         diag = float(extent.norm())
+        diagonal = float(cell.norm())                   # the longest path through a cell
         step = diag / 256 if step is None else float(step)
         axes = [aabb[0, k] + (torch.arange(r) + 0.5) * cell[k] for k in range(3)]
         centers = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
@@ -144,10 +154,28 @@ class OccupancyGrid:
                     for _ in range(max(1, samples_per_cell)):
                         jitter = (torch.rand(c.shape, generator=gen) - 0.5) * cell
                         best = torch.maximum(best, geometry(c + jitter))
-                    out[i:i + chunk] = best > threshold
+                    out[i:i + chunk] = best * diagonal > threshold
                 occ = out.reshape(r, r, r)
                 occ = torch.nn.functional.max_pool3d(occ[None, None].float(), 3, stride=1, padding=1)[0, 0] > 0
         return cls(aabb, occ)
+
+
+#: How far (in cells) outside a face a point still counts as on it: the rounding of a position on the face
+#: (float32 world coordinates to cell units: a few 1e-7 of the resolution).
+FACE_SNAP = 1e-3
+
+
+def _cell_index(r: torch.Tensor, cells: int) -> torch.Tensor:
+    """The cell (as a float) of continuous coordinates r along an axis of ``cells`` cells: floor(r) inside,
+    the last cell on the max face (r = cells), the edge cells within :data:`FACE_SNAP` outside a face, and -1
+    (the padding) elsewhere, NaN included."""
+    inside = (r >= -FACE_SNAP) & (r <= cells + FACE_SNAP)
+    return torch.where(inside, _clamped_index(r, cells), -1.0)
+
+
+def _clamped_index(r: torch.Tensor, cells: int) -> torch.Tensor:
+    """The cell (as a float) nearest to continuous coordinates r along an axis of ``cells`` cells."""
+    return r.clamp(0.0, cells - 1.0).floor_()
 
 
 def _local_lipschitz(values: torch.Tensor, cell: torch.Tensor) -> torch.Tensor:

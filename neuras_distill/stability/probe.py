@@ -42,7 +42,8 @@ REF_STEPS = 2048
 LATTICE = 2 * REF_STEPS           # probe-ray lattice intervals per diagonal (midpoints of REF_STEPS steps)
 #: Mean |opacity(steps) - opacity(REF_STEPS)| over the probe rays that counts as "no surface skipped".
 OPACITY_TOL = 0.005
-#: Density below which a cell counts as empty (as OccupancyGrid.from_field).
+#: Density below which a lattice cell counts as empty in the statistics (OccupancyGrid.from_field judges a
+#: cell by its optical depth instead: the same at a unit box's default resolution).
 OCCUPIED_SIGMA = 0.01
 #: Fraction of non-finite geometry (or colour) samples above which a field is refused.
 MAX_NONFINITE = 0.05

@@ -95,3 +95,31 @@ def test_teacher_from_inside():
     out = VolumeRenderer(field, num_steps=256, occupancy=None).render_rays(torch.zeros(1, 3) + 0.05,
                                                                            torch.tensor([[1.0, 0.0, 0.0]]))
     assert float(out["opacity"][0]) <= 0.01
+
+
+class _UnitSlab:
+    """Density 1 for |x| <= 0.5 in the box [-1, 1]^3 (zero elsewhere)."""
+
+    kind = "density"
+    aabb = torch.tensor([[-1.0] * 3, [1.0] * 3])
+
+    def geometry(self, x):
+        return torch.where(x[:, 0].abs() <= 0.5, 1.0, 0.0)
+
+    def radiance(self, x, d):
+        return torch.full((x.shape[0], 3), 0.5)
+
+
+@S(case="ray lying in a max face of the box: occupancy grid", family="cameras",
+   reference="origin (-3, 0, 1) on the face z = 1 (the box's max), direction +x, through a unit-density slab 1 thick: "
+             "opacity 1 - e^-1 = 0.6321, as without the grid (the grid mapped points on a max face out of the grid: "
+             "opacity 0); the same on the faces y = 1, y = -1 and z = -1",
+   tolerance="absolute 1e-4; with and without the occupancy grid")
+@pytest.mark.parametrize("origin", [(-3.0, 0.0, 1.0), (-3.0, 1.0, 0.0), (-3.0, -1.0, 0.0), (-3.0, 0.0, -1.0)],
+                         ids=["z-max", "y-max", "y-min", "z-min"])
+def test_ray_in_max_face_occupancy(origin):
+    field = _UnitSlab()
+    o, d = torch.tensor([origin]), torch.tensor([[1.0, 0.0, 0.0]])
+    for occupancy in ("auto", None):
+        got = float(VolumeRenderer(field, num_steps=256, occupancy=occupancy).render_rays(o, d)["opacity"][0])
+        assert got == pytest.approx(-math.expm1(-1.0), abs=1e-4), occupancy

@@ -52,3 +52,17 @@ def test_more_codes_than_texels():
     zq, idx, _ = q(z)
     assert torch.allclose(zq, z, atol=1e-3)
     assert torch.equal(idx, _brute(z, q.codebook.data))
+
+
+@S(case="VQ more codes than texels: every texel its own code", family="vq",
+   reference="k-means init with 1024 codes for 1000 distinct texels: 1000 distinct codes, each texel quantises to "
+             "itself (seeding with replacement: 758 distinct codes for the 1000 texels with this seed)",
+   tolerance="exact: 1000 distinct indices, the quantised value equal to the texel")
+def test_every_texel_own_code():
+    g = torch.Generator().manual_seed(0)
+    q = VectorQuantizer(1024, 8)
+    z = torch.randn(1000, 8, generator=g)
+    q.init_from(z, generator=g)
+    zq, idx, _ = q(z)
+    assert idx.unique().numel() == 1000
+    assert torch.equal(zq, z)
