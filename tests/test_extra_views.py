@@ -92,6 +92,7 @@ def test_a_sharp_surface_gets_no_extra_views(small_run):
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 def test_a_fringed_ball_trains_on_extra_views_around_its_cameras(tmp_path, two_torch_threads):
     """The cameras stage of a soft-fringed density ball (the gradient ball): the extra views join the training
     cameras in ``cameras.json``, the held-out ones stay as they were."""
