@@ -9,7 +9,7 @@ dataset's ``transforms.json`` (metric when the capture was): ``x_ns = scale * (R
 Foreground box: where the density exceeds :data:`BOX_DENSITY` (per nerfstudio unit) on a grid over the scene box
 [-1, 1]^3 (nerfstudio's frame), without floaters (connected blobs under :data:`FLOATER_MASS_FRACTION` of the
 largest blob's density mass), grown by one cell; ``--foreground-box`` overrides it. Density that touches the
-scene box's faces, or fills a share of the contracted space beyond it, means content beyond the box:
+scene box's faces, or rays leaving the box that turn opaque within 16 nerfstudio units, mean content beyond it:
 ``unbounded``, and then ``far_region``, which the teacher marches out to nerfstudio's far plane (the skyboxes
 learn what it draws).
 
@@ -20,6 +20,8 @@ direction from the scene box's centre.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import torch
@@ -34,9 +36,10 @@ from .run import NerfactoSettings, NerfstudioRun
 BOX_DENSITY = 1.0
 #: Connected blobs of such cells whose density mass is under this fraction of the largest blob's are floaters.
 FLOATER_MASS_FRACTION = 0.005
-#: The field holds far content (ground, buildings, sky beyond the scene box) when at least this share of a grid's
-#: cells over its contracted space beyond the box has density above BOX_DENSITY.
-FAR_CONTENT_FRACTION = 0.01
+#: The field holds far content (ground, buildings beyond the scene box) when rays from the box's centre become
+#: opaque within FAR_PROBE_RADIUS nerfstudio units in at least this share of the directions.
+FAR_CONTENT_FRACTION = 0.05
+FAR_PROBE_RADIUS = 16.0
 _BOX_GRID = 96
 
 
@@ -174,17 +177,23 @@ class NerfstudioField:
 
     @torch.no_grad()
     def _far_content(self) -> bool:
-        """Whether the contracted space beyond the scene box holds density: at least
-        :data:`FAR_CONTENT_FRACTION` of a grid's cells there above :data:`BOX_DENSITY` (nerfstudio frame)."""
-        r = _BOX_GRID // 2
-        axis = (torch.arange(r, dtype=torch.float32) + 0.5) / r * 4.0 - 2.0       # contracted coordinates
-        c = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
-        m = c.abs().amax(dim=-1, keepdim=True)
-        c = c[(m[:, 0] > 1.0) & (m[:, 0] < 2.0)]
-        m = c.abs().amax(dim=-1, keepdim=True)
-        x = c / m / (2.0 - m)                     # the inverse of x -> (2 - 1/|x|) x / |x| (L-infinity)
-        sigma = torch.cat([self.network.density(x[i:i + 2**16]) for i in range(0, x.shape[0], 2**16)])
-        return bool((sigma > BOX_DENSITY).float().mean() >= FAR_CONTENT_FRACTION)
+        """Whether the space beyond the scene box holds content: rays from the box's centre, from where they leave
+        the box out to :data:`FAR_PROBE_RADIUS` nerfstudio units, become opaque (> 0.5) in at least
+        :data:`FAR_CONTENT_FRACTION` of the directions (the ground, a backdrop; an untrained contracted space is a
+        faint fog that stays transparent over that distance)."""
+        n = 512
+        k = torch.arange(n, dtype=torch.float64) + 0.5
+        z = 1.0 - 2.0 * k / n
+        phi = math.pi * (3.0 - math.sqrt(5.0)) * k
+        d = torch.stack([torch.sqrt(1 - z * z) * torch.cos(phi), torch.sqrt(1 - z * z) * torch.sin(phi), z], -1)
+        t0 = 1.0 / d.abs().amax(dim=-1)                               # where each ray leaves [-1, 1]^3
+        s = torch.linspace(0.0, 1.0, 129, dtype=torch.float64)
+        t = 1.0 / (1.0 / t0[:, None] + s[None] * (1.0 / FAR_PROBE_RADIUS - 1.0 / t0[:, None]))   # disparity
+        mid, dt = 0.5 * (t[:, 1:] + t[:, :-1]), t[:, 1:] - t[:, :-1]
+        pts = (mid[..., None] * d[:, None, :]).reshape(-1, 3).float()
+        sigma = torch.cat([self.network.density(pts[i:i + 2**16]) for i in range(0, pts.shape[0], 2**16)])
+        tau = (sigma.double().reshape(n, -1).clamp(min=0) * dt).sum(-1)
+        return bool(((1.0 - torch.exp(-tau)) > 0.5).double().mean() >= FAR_CONTENT_FRACTION)
 
     def __repr__(self) -> str:
         s = self.settings

@@ -72,7 +72,7 @@ class FarRegion:
 @torch.no_grad()
 def march_interval(field, region: FarRegion, step_s: float, o: torch.Tensor, d: torch.Tensor, t_a: torch.Tensor,
                    t_b: torch.Tensor, trans: torch.Tensor, acc_rgb: torch.Tensor, *, early_stop: float,
-                   min_weight: float, segment: int = 64, stats: dict | None = None) -> torch.Tensor:
+                   min_weight: float, segment: int = 32, stats: dict | None = None) -> torch.Tensor:
     """Composite ``field`` (kind "density") over [t_a, t_b] of each ray, front to back, behind transmittance
     ``trans``.
 
