@@ -60,7 +60,7 @@ class TeacherConfig:
 
     num_steps: int = 256
     """Ray-marching steps across the field's box diagonal (the teacher and the "before" renderer)."""
-    far_steps: int = 512
+    far_steps: int = 256
     """Samples per ray between the near and far planes of an unbounded field (one trained with scene
     contraction, as nerfstudio's nerfacto): the ground, buildings and sky beyond the foreground box, spaced
     linearly near the camera and uniformly in disparity beyond (render/far_region.py). 0 leaves that space to

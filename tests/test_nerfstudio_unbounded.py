@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import torch
 
+from neuras_distill.config import TeacherConfig
 from neuras_distill.registry import load_field
 from neuras_distill.render.cameras import Cameras
 from neuras_distill.render.volume import VolumeRenderer
@@ -58,8 +59,9 @@ def test_the_teacher_draws_nerfstudios_picture_inside_and_outside_the_box(orbit)
     far region at about a minute a full 160x120 view): the far region brings the ground, the skyline and the
     sky that a renderer clipped to the box leaves to the background colour."""
     field, cams, rgb, _ = orbit
-    whole = VolumeRenderer(field, num_steps=256, far_steps=512)
-    boxed = VolumeRenderer(field, num_steps=256, far_steps=0, occupancy=whole.occupancy)
+    teacher = TeacherConfig()
+    whole = VolumeRenderer(field, num_steps=teacher.num_steps, far_steps=teacher.far_steps)
+    boxed = VolumeRenderer(field, num_steps=teacher.num_steps, far_steps=0, occupancy=whole.occupancy)
     img, clipped, ref, opacity = [], [], [], []
     for i in (0, 3):
         origins, dirs = cams.rays(i)
