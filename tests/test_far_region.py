@@ -86,3 +86,13 @@ def test_a_far_plane_float32_cannot_resolve_is_refused():
         FarRegion(near=5.0, far=1.0, pivot=1.0)
     with pytest.raises(BadInputError, match="finite"):
         FarRegion(near=0.0, far=float("nan"), pivot=1.0)
+
+
+def test_nan_and_inf_densities_in_the_far_region_are_empty_and_opaque():
+    """As inside the box (render/compositing.py): a NaN sample is empty, an Inf one opaque."""
+    for value, colour in ((float("nan"), [0.0, 0.0, 1.0]), (float("inf"), [1.0, 0.0, 0.0])):
+        field = Medium(value, FarRegion(near=0.05, far=100.0, pivot=1.0))
+        field.aabb = torch.tensor([[10.0, 10.0, 10.0], [11.0, 11.0, 11.0]])    # the rays miss the box
+        o, d = _rays([[0.0, 0.0, 0.0]], [[-1.0, 0.2, 0.1]])
+        out = VolumeRenderer(field, num_steps=16, far_steps=64, occupancy=None).render_rays(o, d)
+        assert torch.allclose(out["rgb"], torch.tensor([colour]), atol=1e-6), (value, out["rgb"])

@@ -100,7 +100,7 @@ def march_interval(field, region: FarRegion, step_s: float, o: torch.Tensor, d: 
         rows = flat // segment
         pts = torch.addcmul(o[live][rows].double(), t_mid.reshape(-1)[flat][:, None], d[live][rows].double())
         sigma = torch.zeros(valid.numel(), device=o.device)
-        sigma[flat] = torch.nan_to_num(field.geometry(pts.float()).reshape(-1).float(), nan=0.0, posinf=0.0)
+        sigma[flat] = field.geometry(pts.float()).reshape(-1).float()   # optical_depth: NaN -> 0, Inf -> opaque
         if stats is not None:
             stats["geometry_points"] = stats.get("geometry_points", 0) + int(flat.numel())
             stats["far_points"] = stats.get("far_points", 0) + int(flat.numel())
