@@ -19,7 +19,7 @@ UPSTREAM = re.compile(r"nerfstudio|instant-ngp|NVlabs|tiny-cuda-nn|xatlas|pymesh
 #: (name, pattern, which files, lines that are allowed despite matching). Each pattern is development bookkeeping:
 #: rounds of work, our own tracker's numbers, scratch paths, borrowed machines, files outside the repository.
 RULES = [
-    ("development session", re.compile(r"\bsessions?\b", re.IGNORECASE), "all",
+    ("development round", re.compile(r"\bsess" r"ions?\b", re.IGNORECASE), "all",
      re.compile(r"""scope=["']session["']|session-scoped|pytest_session\w*\(session""")),
     ("tracker issue number", re.compile(r"\bissues?[ -]#?[0-9]+", re.IGNORECASE), "all", None),
     ("scratch folder", re.compile(r"\.dev[0-9]+/"), "all", None),
@@ -76,13 +76,14 @@ def test_no_development_bookkeeping_in_tracked_files():
 
 
 def test_the_bookkeeping_patterns_catch_what_they_should(tmp_path, monkeypatch):
-    """The rules fire on bookkeeping and stay quiet on pytest's session scope and upstream trackers' numbers."""
+    """The rules fire on bookkeeping and stay quiet on pytest's fixture scopes and upstream trackers' numbers.
+    The bad examples are split literals, so that the tree itself holds none of them."""
     monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
-    bad = {"a.py": "# measured in session 24 on the lent H200\n",
-           "b.py": '"""Atlas pages (issue 15)."""\nx = 1  # see issue #7\n',
-           "c.md": "probe: `.dev24/probe2.py`, output in /tmp/run\n",
+    bad = {"a.py": "# measured in sess" "ion 24 on the lent H200\n",
+           "b.py": '"""Atlas pages (iss' 'ue 15)."""\nx = 1  # see issue #7\n',
+           "c.md": "probe: `.dev" "24/probe2.py`, output in /tmp/run\n",
            "d.py": "# the contract is DESIGN.md §2\n",
-           "h.py": "# torch is slower here (issue 12)\n"}
+           "h.py": "# torch is slower here (iss" "ue 12)\n"}
     good = {"e.py": '@pytest.fixture(scope="session")\ndef pytest_sessionfinish(session, exitstatus):\n',
             "f.py": "# nerfstudio #2068 is this bug; NVlabs/instant-ngp PR #1192 and issue #1577\n",
             "g.py": "out = Path('/tmp/x')  # scratch paths in code are not docs\n"}
