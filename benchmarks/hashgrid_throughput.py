@@ -102,7 +102,7 @@ class NeuSDefaultSDF(torch.nn.Module):
 def run_neus(device: torch.device, points: int, repeats: int) -> list[dict]:
     """(c) and (d): the NeuS default network and the fixture field."""
     from adapters.neus.adapter import NeuSAdapter
-    from neuras_distill.device import on_device
+    from neuras_distill.device_field import on_device
 
     gen = torch.Generator().manual_seed(1)
     x = (torch.rand(points, 3, generator=gen) * 2 - 1).to(device)

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from neuras_distill.device import describe, on_device, resolve_device
+from neuras_distill.device import describe, resolve_device
+from neuras_distill.device_field import on_device
 from neuras_distill.registry import load_field
 from neuras_distill.render.volume import VolumeRenderer
 from neuras_distill.scenes.analytic import orbit_framing

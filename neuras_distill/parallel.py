@@ -214,7 +214,7 @@ class RenderPool:
         each view's render time on the rank that rendered it, while the others rendered theirs)."""
         import time
 
-        from .pipeline.evaluate import FieldRenders
+        from .render.field_renders import FieldRenders
 
         request = RenderRequest(cameras.to_json(), renderer_settings(renderer), depths)
         old = torch.get_num_threads()

@@ -22,6 +22,7 @@ from typing import Any
 
 import torch
 
+from .device import is_package_object
 from .errors import require
 
 PRECISIONS = ("fp32", "fp16")
@@ -65,9 +66,7 @@ def _modules(obj: Any, seen: set):
     if isinstance(obj, torch.nn.Module):
         yield from obj.modules()
         return
-    from .device import _ours
-
-    if not _ours(obj):
+    if not is_package_object(obj):
         return
     for value in vars(obj).values():
         if isinstance(value, (list, tuple)):

@@ -11,8 +11,8 @@ import sys
 import pytest
 import torch
 
-from neuras_distill.device import (OUT_OF_MEMORY, DeviceField, chunk_for_memory, field_device, move_field,
-                                   on_device, resolve_device)
+from neuras_distill.device import OUT_OF_MEMORY, chunk_for_memory, field_device, move_field, resolve_device
+from neuras_distill.device_field import DeviceField, on_device
 from neuras_distill.errors import BadInputError
 from neuras_distill.pipeline.run_report import device_info
 from neuras_distill.playback.context import software_gl

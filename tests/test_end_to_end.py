@@ -40,7 +40,7 @@ def test_report_has_the_contract(small_run):
 
 
 def test_the_bundle_carries_its_plain_texture_and_exports_to_gltf(small_run, tmp_path):
-    from neuras_distill.bake.gltf import export_gltf
+    from neuras_distill.export.gltf import export_gltf
 
     result, out = small_run
     bundle = nd.load_bundle(out / "bundle")

@@ -15,7 +15,8 @@ from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.cleanup import clean_mesh, decimate, is_watertight
 from neuras_distill.geometry.extract import extract_mesh
 from neuras_distill.geometry.grid import grid_spec, sample_grid
-from neuras_distill.geometry.marching import marching_cubes_field, signed_volume
+from neuras_distill.geometry.lattice_mc import signed_volume
+from neuras_distill.geometry.marching import marching_cubes_field
 from neuras_distill.geometry.mesh import MeshData
 from neuras_distill.geometry.unwrap import CRASH_HOOK_ENV, unwrap, uv_face_areas
 from neuras_distill.geometry.visibility import cull_unseen_faces

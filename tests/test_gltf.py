@@ -1,4 +1,4 @@
-"""glTF export (bake/gltf.py, ``neuras-distill export --format gltf``) and the stored plain texture it carries.
+"""glTF export (export/gltf.py, ``neuras-distill export --format gltf``) and the stored plain texture it carries.
 
 The GLB passes the Khronos glTF-Validator (npm ``gltf-validator`` in .tools/, installed by scripts/setup.sh), opens
 in trimesh at world positions with its texture, and ``load_bundle`` restores the bundle from it byte for byte,
@@ -21,7 +21,8 @@ from PIL import Image
 
 import neuras_distill as nd
 from neuras_distill.bake.bundle import bake, load_bundle, read_bundle_file_bytes
-from neuras_distill.bake.gltf import export_gltf, read_bundle_files
+from neuras_distill.bake.glb_reader import read_bundle_files
+from neuras_distill.export.gltf import export_gltf
 from neuras_distill.bake.plain_texture import chart_mask, pad_gutters, plain_texture, plain_texture_rgb8
 from neuras_distill.cli import main
 from neuras_distill.errors import BadInputError

@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from neuras_distill.cli import build_parser
+from neuras_distill.cli_parser import build_parser
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.base import check_field
 from neuras_distill.registry import load_field

@@ -108,7 +108,8 @@ def test_skybox_texture_and_eval_settings_are_validated():
 
 
 def test_a_config_file_changes_a_scenes_own_preset_instead_of_replacing_it(tmp_path):
-    from neuras_distill.cli import build_parser, run_inputs
+    from neuras_distill.cli_parser import build_parser
+    from neuras_distill.run_inputs import run_inputs
 
     tweak = tmp_path / "codes.toml"
     tweak.write_text("[texture]\nnum_codes = 1024\n")

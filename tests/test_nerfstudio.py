@@ -344,7 +344,8 @@ def test_a_nerfacto_run_distills_end_to_end(tmp_path):
 def test_ns_export_camera_files_are_moved_into_the_datasets_frame(tmp_path):
     """``ns-export cameras`` writes poses in nerfstudio's frame without intrinsics: with --image-size and --focal
     they become the dataset's cameras again."""
-    from neuras_distill.cli import build_parser, run_inputs
+    from neuras_distill.cli_parser import build_parser
+    from neuras_distill.run_inputs import run_inputs
     from neuras_distill.render.cameras import Cameras
 
     data = Cameras.from_transforms(RUN / "transforms.json")

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from neuras_distill.components.tcnn import HashGridEncoding
-from neuras_distill.device import on_device
+from neuras_distill.device_field import on_device
 from neuras_distill.errors import BadInputError
 from neuras_distill.precision import FP16_TEACHER_MIN_PSNR_DB, half_tables
 from neuras_distill.registry import load_field

@@ -14,7 +14,7 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from neuras_distill.bake.web import DATA_SCRIPT, MARKER
+from neuras_distill.export.web import DATA_SCRIPT, MARKER
 from neuras_distill.pipeline.report import markdown, report_blocks
 from neuras_distill.pipeline.report_html import PLAYER_SRC, render_html
 from test_web import assert_matches_desktop, wait_for_player

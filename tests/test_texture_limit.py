@@ -1,4 +1,4 @@
-"""The exports' texture limit (bake/texture_limit.py): codebooks wrapped again to fit, shaders rewritten to match,
+"""The exports' texture limit (export/texture_limit.py): codebooks wrapped again to fit, shaders rewritten to match,
 every other texture checked, and a texture that cannot fit refused with one line naming it.
 
 The browser side (the default demo's codebook played in Chromium, whose SwiftShader holds 8192 texels a side)
@@ -14,7 +14,7 @@ import pytest
 
 from neuras_distill.bake.bundle import bake, codes_per_row, wrap_codebook
 from neuras_distill.bake.glsl import generate_fragment_shader, rewrap_codebook_fetches
-from neuras_distill.bake.texture_limit import check_side, fit_bundle_textures, fit_codebook, smallest_limit
+from neuras_distill.export.texture_limit import check_side, fit_bundle_textures, fit_codebook, smallest_limit
 from neuras_distill.errors import BadInputError
 from test_bake import make_model, quad_mesh
 

@@ -1,4 +1,4 @@
-"""Web export (bake/web.py, ``neuras-distill export BUNDLE --format web --out DIR``) and its WebGL2 player.
+"""Web export (export/web.py, ``neuras-distill export BUNDLE --format web --out DIR``) and its WebGL2 player.
 
 The browser test serves the exported folder over HTTP, opens ``index.html?camera=N`` in headless Chromium (the
 system's /usr/bin/chromium through selenium and the system chromedriver; WebGL2 on SwiftShader) and compares the
@@ -35,8 +35,8 @@ from PIL import Image
 from neuras_distill.bake.bundle import Bundle, bake, codes_per_row, load_bundle, wrap_codebook
 from neuras_distill.bake.glsl import (GLSL_ES_GATHER, GLSL_ES_GATHER_ARRAY, GLSL_ES_PRECISION,
                                       generate_fragment_shader, to_glsl_es)
-from neuras_distill.bake.texture_limit import DEFAULT_MAX_TEXTURE_SIZE
-from neuras_distill.bake.web import DATA_SCRIPT, MARKER, PLAYER_FILES, export_web
+from neuras_distill.export.texture_limit import DEFAULT_MAX_TEXTURE_SIZE
+from neuras_distill.export.web import DATA_SCRIPT, MARKER, PLAYER_FILES, export_web
 from neuras_distill.cli import main
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData

@@ -22,9 +22,9 @@ Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature
     plain_rgb.png        optional (every run writes it): 8-bit RGB PNG, (H, W) of the feature atlas,
                          the plain texture (``bake/plain_texture.py``: the model once per texel, gutters padded),
                          values as displayed (sRGB as stored), row 0 = v = 0 like the index map; what the glTF
-                         export (``bake/gltf.py``) hands other engines as base colour. Never bound by the player.
+                         export (``export/gltf.py``) hands other engines as base colour. Never bound by the player.
 
-A bundle also travels as one glTF binary (``bake/gltf.py``): :func:`load_bundle` given a ``.glb`` file reads the
+A bundle also travels as one glTF binary (``export/gltf.py``): :func:`load_bundle` given a ``.glb`` file reads the
 same files, byte for byte, from its ``NEURAS_bundle`` extension and validates them exactly like a folder's.
 
 Textures are named by the sampler they bind to: ``u_index`` (uint16 (H, W)) and ``u_codebook``, and with
@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from neuras_distill.bake.glb_reader import read_bundle_files
 from neuras_distill.bake.glsl import generate_fragment_shader
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
@@ -371,13 +372,11 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
 
 
 def load_bundle(directory) -> Bundle:
-    """Read and validate a saved bundle: its folder, or a glTF binary (``.glb``) written by ``bake/gltf.py``
+    """Read and validate a saved bundle: its folder, or a glTF binary (``.glb``) written by ``export/gltf.py``
     (the same files, carried in the ``NEURAS_bundle`` extension). Raises BadInputError naming the missing or
     corrupt file."""
     d = Path(directory)
     if d.is_file():
-        from .gltf import read_bundle_files  # only for .glb files: the folder path never imports it
-
         files = read_bundle_files(d)
         return _load_files(d, files.get, lambda name: name in files)
     if not d.is_dir():

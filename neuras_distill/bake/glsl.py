@@ -28,8 +28,7 @@ import math
 
 import numpy as np
 
-from ..playback.shaders import CORE_VARIANT, SHELL_VARIANT
-from ..playback.silhouette import SHELL_COVERAGE
+from .shader_interface import CORE_VARIANT, SHELL_COVERAGE, SHELL_VARIANT
 
 
 def glsl_float(x: float) -> str:
@@ -143,7 +142,7 @@ def rewrap_codebook_fetches(source: str, codebook: str, c4: int, old: int, new: 
     """``source`` (a shader :func:`bilinear_feature_lines` wrote, reading ``codebook`` with ``old`` codes per row)
     reading it with ``new`` codes per row instead: each of the ``4 * c4`` fetches :func:`codebook_fetch` writes
     is replaced, nothing else changes, so the result equals the shader generated with ``codes_per_row=new``
-    (the web export re-wraps a codebook to its texture limit, ``bake/texture_limit.py``). Raises ValueError
+    (the web export re-wraps a codebook to its texture limit, ``export/texture_limit.py``). Raises ValueError
     when a fetch is not in ``source`` exactly once (a shader this package did not generate)."""
     if old == new:
         return source
@@ -282,7 +281,7 @@ GLSL_ES_GATHER_ARRAY = """uvec4 neurasGather(usampler2DArray s, vec3 p) {  // th
 
 def to_glsl_es(source: str) -> str:
     """The desktop GLSL ``source`` (any shader this package generates or ships: ``#version 330`` / ``400 core``)
-    rewritten as GLSL ES 3.00 for WebGL2 (``bake/web.py``). The rewrite, and all of it:
+    rewritten as GLSL ES 3.00 for WebGL2 (``export/web.py``). The rewrite, and all of it:
 
     1. the ``#version`` line becomes ``#version 300 es`` followed by :data:`GLSL_ES_PRECISION`;
     2. where the source calls ``textureGather(``, the calls become ``neurasGather(`` and :data:`GLSL_ES_GATHER`

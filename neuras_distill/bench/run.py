@@ -93,7 +93,8 @@ def _in_folder(folder: str | None):
 
 def rebuild_inputs(report: dict) -> tuple:
     """(field, cameras or None) the run's recorded command distilled, loaded in the folder it ran in."""
-    from ..cli import RUN_COMMANDS, build_parser
+    from ..cli_parser import build_parser
+    from ..run_inputs import RUN_COMMANDS, run_inputs
 
     argv = list(report["source"]["command"][1:])
     try:
@@ -102,8 +103,6 @@ def rebuild_inputs(report: dict) -> tuple:
         raise BadInputError(f"the run's recorded command {' '.join(argv)!r} is not one this version reads; "
                             "re-run the distillation") from None
     require(args.command in RUN_COMMANDS, f"the run's recorded command {args.command!r} does not distil a field")
-    from ..cli import run_inputs
-
     with _in_folder(report["source"].get("cwd")):
         field, cameras, _ = run_inputs(args)
     return field, cameras

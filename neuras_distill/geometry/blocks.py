@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import BadInputError
 from .grid import GridSpec, sample_slab
+from .lattice_mc import lattice_marching_cubes, nudge_level, signed_volume
 from .mesh import MeshData
 
 #: Lattices with more points than this are meshed in blocks (an SDF field without a fringe shell): 2^25 points
@@ -42,7 +43,6 @@ def marching_cubes_blocks(fn, spec: GridSpec, level: float, *, outside: float, b
     stats ``mc_blocks``, ``mc_block_slices``, ``grid_nonfinite``, ``grid_seconds`` (sampling) and
     ``mc_cavity_voxels`` = None (not filled). Raises BadInputError when the lattice holds no surface at ``level``.
     """
-    from .marching import lattice_marching_cubes, nudge_level, signed_volume  # (marching imports this module)
 
     r0, r1, r2 = spec.shape
     per_block = max(1, int(block_points) // (r1 * r2))

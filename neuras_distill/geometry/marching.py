@@ -1,4 +1,4 @@
-"""Field -> triangle mesh by marching cubes (the only scikit-image importer).
+"""Field -> triangle mesh by marching cubes (scikit-image's, through ``lattice_mc``).
 
 Owns the choice of iso-level, padding, orientation and the index-to-world mapping:
 
@@ -47,12 +47,12 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 from scipy import ndimage
-from skimage import measure
 
 from ..errors import BadInputError
 from . import blocks
 from .colour_level import colour_level
 from .grid import field_outside_value, grid_spec, sample_grid
+from .lattice_mc import lattice_marching_cubes, nudge_level, signed_volume
 from .mesh import MeshData
 
 if TYPE_CHECKING:
@@ -74,32 +74,6 @@ def density_level(grid: np.ndarray, step: float, alpha: float = DENSITY_STEP_ALP
     """
     peak = float(np.max(grid)) if grid.size else 0.0
     return float(min(-math.log(1.0 - alpha) / step, 0.5 * peak))
-
-
-def nudge_level(grid: np.ndarray, level: float) -> float:
-    """``level`` raised by a negligible amount (1e-7 of the grid's range, doubling) until no grid value equals
-    it exactly (exact ties make zero-area triangles and holes, scikit-image#8116)."""
-    lv = np.float32(level)
-    if not np.any(grid == lv):
-        return float(lv)
-    step = 1e-7 * max(abs(float(level)), float(grid.max()) - float(grid.min()), 1e-30)
-    for i in range(64):
-        if not np.any(grid == lv):
-            return float(lv)
-        lv = np.float32(float(level) + step * (2 ** i))
-    return float(lv)
-
-
-def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """Signed volume (float64) enclosed by a closed mesh; positive when faces are CCW seen from outside."""
-    if faces.shape[0] == 0:
-        return 0.0
-    v = np.asarray(vertices, dtype=np.float64)
-    total = 0.0
-    for f0 in range(0, faces.shape[0], 1 << 20):            # bounded temporaries on multi-million-face meshes
-        f = faces[f0:f0 + (1 << 20)]
-        total += float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum())
-    return total / 6.0
 
 
 def folded_fraction(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -127,14 +101,6 @@ def folded_fraction(vertices: np.ndarray, faces: np.ndarray) -> float:
     first, second = order[:-1][pair] // 3, order[1:][pair] // 3
     cos = np.einsum("ij,ij->i", n[first], n[second])
     return float((cos < 0).mean())
-
-
-def lattice_marching_cubes(values: np.ndarray, level: float, gradient_direction: str) -> tuple[np.ndarray, np.ndarray]:
-    """scikit-image's marching cubes on ``values`` (R0, R1, R2) at ``level``, no degenerate triangles: (vertices
-    (V, 3) float32 in lattice index units, faces (F, 3) int). ``gradient_direction``: "descent" for an SDF."""
-    verts, faces, _, _ = measure.marching_cubes(values, level=level, gradient_direction=gradient_direction,
-                                                allow_degenerate=False)
-    return verts, faces
 
 
 def fill_cavities(values: np.ndarray, level: float, outward: float) -> tuple[np.ndarray, int]:
@@ -200,9 +166,7 @@ def marching_cubes_grid(grid: np.ndarray, origin: Sequence[float], spacing: Sequ
     origin = np.asarray(origin, dtype=np.float64) - spacing
     gradient_direction = "descent" if kind == "sdf" else "ascent"
     try:
-        verts, faces, _, _ = measure.marching_cubes(padded, level=mc_level, spacing=tuple(spacing),
-                                                    gradient_direction=gradient_direction,
-                                                    allow_degenerate=False)
+        verts, faces = lattice_marching_cubes(padded, mc_level, gradient_direction, spacing=tuple(spacing))
     except (ValueError, RuntimeError) as exc:
         raise BadInputError(f"the field has no surface inside its box at level {level:.4g} ({exc}); check the "
                             "aabb and the field kind, or pass an explicit density level.") from None
@@ -493,4 +457,4 @@ def _enclose_fringe(grid, spec, kind: str, level: float, mesh: MeshData, check, 
 
 
 __all__ = ["offset_grid", "marching_cubes_field", "mesh_handles", "outward_levels", "marching_cubes_grid",
-           "fill_cavities", "folded_fraction", "density_level", "nudge_level", "signed_volume"]
+           "fill_cavities", "folded_fraction", "density_level"]

@@ -12,7 +12,6 @@ windows at native resolution: the silhouette-band and the interior area with the
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import uniform_filter
@@ -20,23 +19,11 @@ from scipy.ndimage import uniform_filter
 from .. import metrics
 from ..device import synchronize
 from ..render.cameras import Cameras
+from ..render.field_renders import FieldRenders
 
 #: A held-out pixel counts as inside the foreground box when the field's opacity there (the box's, as seen through
 #: what lies in front of it) is at least this; the rest is outside (the far region, or the background).
 INSIDE_BOX_OPACITY = 0.5
-
-
-@dataclass
-class FieldRenders:
-    """The field's renders of a camera set: ``images`` (H, W, 3), ``opacities`` (H, W), ``surface_depths`` and
-    ``fringe_depths`` (H, W) (distance along the unit ray where the opacity reaches 0.5 and
-    ``render.volume.FRINGE_OPACITY``, 0 where it never does) per view, and ``seconds`` per frame."""
-
-    images: list[np.ndarray]
-    opacities: list[np.ndarray]
-    surface_depths: list[np.ndarray]
-    fringe_depths: list[np.ndarray]
-    seconds: list[float]
 
 
 def render_field_timed(renderer, cameras: Cameras, progress=None) -> tuple[list[np.ndarray], list[float]]:

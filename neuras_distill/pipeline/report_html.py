@@ -3,7 +3,7 @@
 Owns: :func:`write_report_html` (the run folder's ``web/`` player and ``report.html``) and :func:`render_html`.
 The page renders the very blocks ``report.report_blocks`` gives report.md (tables, the plot, the side-by-side
 views and crops), links images by their paths relative to the run folder, and embeds
-``web/index.html?camera=0&fit`` (the bundle exported by ``bake/web.py``) in an iframe with the aspect of held-out
+``web/index.html?camera=0&fit`` (the bundle exported by ``export/web.py``) in an iframe with the aspect of held-out
 camera 0, at least ``MIN_PLAYER_WIDTH`` wide. Nothing is fetched from outside the folder; it works opened from
 ``file://`` (the player then reads ``web/data.js``) and served by ``python -m http.server`` (the player fetches
 its files).
@@ -132,10 +132,10 @@ def _camera_size(web: Path) -> tuple[int, int]:
 
 def write_report_html(root: Path, rep: dict) -> Path:
     """Export ``root/bundle`` (when there is one) as the web player ``root/web`` and write ``root/report.html``.
-    Returns the page's path. A bundle the web export refuses (a texture above its limit, ``bake/texture_limit.py``)
+    Returns the page's path. A bundle the web export refuses (a texture above its limit, ``export/texture_limit.py``)
     gets the page without a player, saying why."""
-    from ..bake.web import MARKER, export_web
     from ..errors import BadInputError
+    from ..export.web import MARKER, export_web
 
     root = Path(root)
     size, reason = None, None

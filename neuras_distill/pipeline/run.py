@@ -33,6 +33,7 @@ from ..errors import BadInputError, require
 from ..render.cameras import Cameras
 from . import report as report_mod, stages
 from .cache import StageCache
+from .run_outputs import write_run_outputs
 from .run_report import build_report
 from .rundir import RunFolder
 from .stages.context import RunContext
@@ -246,7 +247,7 @@ def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, 
                    else ""))
     rep["distill_seconds"] = time.perf_counter() - t_start
     if root is not None:
-        report_mod.write_run_outputs(root, rep, evaluation.field_views.images, evaluation.bundle_images,
+        write_run_outputs(root, rep, evaluation.field_views.images, evaluation.bundle_images,
                                      evaluation.extra_views, evaluation.flip_maps)
     log(report_mod.summary_table(rep))
     return DistillResult(report=rep, out=root, bundle=bundle)

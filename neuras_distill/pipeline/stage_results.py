@@ -53,9 +53,9 @@ class TeacherResult:
 
     @staticmethod
     def write_views(folder: Path, renders, seconds: float) -> None:
-        """Store per-view renders (``evaluate.FieldRenders``) as one ``.npy`` per attribute (what :meth:`load`
-        reads), moving each view into the files and dropping it from ``renders`` as it goes: never a stacked copy
-        in memory beside the lists."""
+        """Store per-view renders (``render.field_renders.FieldRenders``) as one ``.npy`` per attribute (what
+        :meth:`load` reads), moving each view into the files and dropping it from ``renders`` as it goes: never a
+        stacked copy in memory beside the lists."""
         lists = {"images": renders.images, "opacities": renders.opacities,
                  "surface_depths": renders.surface_depths, "fringe_depths": renders.fringe_depths}
         for name, views in lists.items():

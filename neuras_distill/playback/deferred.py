@@ -40,9 +40,10 @@ import re
 
 import numpy as np
 
+from ..bake.shader_interface import CORE_VARIANT, SHELL_VARIANT
 from ..errors import BadInputError
 from .rasterize import draw_mesh, set_raster_state
-from .shaders import CORE_VARIANT, SHELL_VARIANT, VERTEX_SHADER
+from .shaders import VERTEX_SHADER
 from .silhouette import SILHOUETTE_FRAGMENT_SHADER
 
 #: Compute work group: 16 x 8 pixels (measured on the H100 with the demo's shader: 8 x 8 0.027 ms, 16 x 8

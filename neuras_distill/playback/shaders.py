@@ -63,8 +63,6 @@ void main() {
 """
 
 
-#: ``MESH_LAYER`` values of a two-layer bundle's fragment shader (the default, without a define, is the core).
-CORE_VARIANT, SHELL_VARIANT = 0, 1
 
 
 def shader_variant(source: str, mesh_layer: int) -> str:

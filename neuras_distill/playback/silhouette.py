@@ -32,8 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: The alpha a two-layer mesh's shell writes (77 / 255, exact in RGBA8); the core and one-layer meshes write 1.
-SHELL_COVERAGE = 77.0 / 255.0
+from ..bake.shader_interface import SHELL_COVERAGE
 
 #: A full-screen triangle (no vertex buffer: ``gl_VertexID`` 0, 1, 2).
 SILHOUETTE_VERTEX_SHADER = """#version 330

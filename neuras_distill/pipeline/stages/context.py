@@ -15,7 +15,8 @@ import torch
 
 from ... import __version__
 from ...config import DistillConfig
-from ...device import on_device, peak_memory_mb
+from ...device import peak_memory_mb
+from ...device_field import on_device
 from ...fields.base import Field
 from ..cache import StageCache, field_fingerprint
 from ..choices import Background, Decisions
@@ -87,7 +88,7 @@ class RunContext:
         clock: stage announcements, seeds and times; decisions: what was kept and left out, in order.
         keys: each stored stage's key (``pipeline.cache.digest``), filled in as the stages run.
         device: where the field, the teacher and training compute (``neuras_distill.device``); on a GPU
-            ``field`` is replaced by a :class:`~neuras_distill.device.DeviceField` after the fingerprint (of the
+            ``field`` is replaced by a :class:`~neuras_distill.device_field.DeviceField` after the fingerprint (of the
             host field: the same keys on every device) is taken.
         pool: a :class:`~neuras_distill.parallel.RenderPool` sharing the teacher's renders and training
             (``--nproc N``), or None (one process).

@@ -80,7 +80,7 @@ def fit_codebook(name: str, texture: np.ndarray, num_codes: int, per_row: int, l
     ``num_codes`` K codes, ``bundle.wrap_codebook``) within ``limit`` texels a side: unchanged when it fits, else
     wrapped again with ``bundle.codes_per_row(K, limit)`` codes per row. BadInputError when no wrap fits
     (``per_row * C4 > limit``), suggesting ``needed`` (default :func:`smallest_limit`)."""
-    from .bundle import codes_per_row, wrap_codebook
+    from ..bake.bundle import codes_per_row, wrap_codebook
 
     rows, width = texture.shape[:2]
     if max(rows, width) <= limit:
@@ -100,8 +100,8 @@ def fit_bundle_textures(bundle, limit: int) -> tuple[dict, str, str | None]:
     again where needed and the shaders reading them rewritten to match. BadInputError naming the first texture
     (in name order) that cannot fit, with the smallest ``--max-texture-size`` that fits them all, or a shader
     that does not read its codebook as the bake writes it."""
-    from .bundle import PAGED_TEXTURES, atlas_pages
-    from .glsl import rewrap_codebook_fetches
+    from ..bake.bundle import PAGED_TEXTURES, atlas_pages
+    from ..bake.glsl import rewrap_codebook_fetches
 
     manifest = bundle.manifest or {}
     shaders = {"u_codebook": bundle.fragment_shader, "u_sky_codebook": bundle.sky_fragment_shader}

@@ -21,7 +21,7 @@ Layout of DIR (every binary file raw little-endian, no header; the sizes are in 
     tex_<uniform>.bin           one per bundle texture: uint16 (H, W[, C]) -> R16UI..RGBA16UI, float32 ->
                                 R32F..RGBA32F, row 0 = v = 0, NEAREST (as ``BundleRenderer`` binds them); every
                                 side at most ``max_texture_size`` (scene.json; default 4096,
-                                ``bake/texture_limit.py``): a taller codebook is wrapped again with more codes
+                                ``export/texture_limit.py``): a taller codebook is wrapped again with more codes
                                 per row and the shaders reading it say so
     data.js                     every file above (not the player, not the marker) base64 in one script:
                                 ``window.NEURAS_WEB_DATA = {"files": {path: base64}}``; the player loads it only
@@ -54,8 +54,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..bake.bundle import PAGED_TEXTURES, atlas_pages
 from ..errors import BadInputError
-from .bundle import PAGED_TEXTURES, atlas_pages
 from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, checked_limit, fit_bundle_textures
 
 MARKER = ".neuras-distill-web"
@@ -87,12 +87,12 @@ def web_files(bundle, cameras_json: bytes, max_texture_size: int = DEFAULT_MAX_T
     """{relative path: bytes} of the web folder for a loaded ``bundle`` (see the module docstring), the marker
     included, every texture at most ``max_texture_size`` texels a side (``texture_limit.fit_bundle_textures``;
     BadInputError naming a texture that cannot fit)."""
+    from ..bake.glsl import to_glsl_es
+    from ..bake.glsl_sky import SKY_VERTEX_SHADER
     from ..playback.projection import mesh_bounds
     from ..playback.rasterize import mesh_layers
     from ..playback.shaders import VERTEX_SHADER, shader_variant
     from ..playback.silhouette import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER
-    from .glsl import to_glsl_es
-    from .glsl_sky import SKY_VERTEX_SHADER
 
     limit = checked_limit(max_texture_size)
     fitted, fragment_shader, sky_fragment_shader = fit_bundle_textures(bundle, limit)
@@ -173,7 +173,7 @@ def export_web(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZ
     folder with our marker, the textures' sizes), builds the folder under a temporary sibling name and renames it
     into place: on any error nothing is left behind. Returns ``out``.
     """
-    from .bundle import load_bundle
+    from ..bake.bundle import load_bundle
 
     src, out = Path(bundle_path), Path(out)
     limit = checked_limit(max_texture_size)

@@ -1,8 +1,8 @@
-"""glTF 2.0 binary (``.glb``) export of a bundle, and the reader that lets ``load_bundle`` open one.
+"""glTF 2.0 binary (``.glb``) export of a bundle.
 
-Owns: :func:`export_gltf` (``neuras-distill export BUNDLE --format gltf --out scene.glb``), :func:`glb_bytes`,
-:func:`read_bundle_files`, :func:`written_by_us`. The GLB is written by hand (a JSON chunk and one binary chunk:
-no glTF library), so this module is the only one that knows the layout.
+Owns: :func:`export_gltf` (``neuras-distill export BUNDLE --format gltf --out scene.glb``) and :func:`glb_bytes`.
+The GLB is written by hand (a JSON chunk and one binary chunk: no glTF library); this module and
+:mod:`.glb_reader` (which reads a bundle back out of one) are the only ones that know the layout.
 
 Layout (one buffer, the GLB's binary chunk; every buffer view starts on a 4-byte boundary)::
 
@@ -16,7 +16,7 @@ Layout (one buffer, the GLB's binary chunk; every buffer view starts on a 4-byte
     materials[0]: KHR_materials_unlit, baseColorTexture = the bundle's plain_rgb.png (8-bit RGB, values as
         displayed, i.e. sRGB-encoded base colour as glTF expects), sampler LINEAR / LINEAR_MIPMAP_LINEAR,
         CLAMP_TO_EDGE; doubleSided unless the manifest says ``cull_back_faces``; each image at most
-        ``max_texture_size`` texels a side (default 4096, ``bake/texture_limit.py``; a larger page is refused)
+        ``max_texture_size`` texels a side (default 4096, ``export/texture_limit.py``; a larger page is refused)
     an atlas in pages (``manifest.atlas_pages`` P > 1): one primitive, material, texture and image per page
         with faces (primitive p's indices are the faces on page p, its material p's image page p of
         plain_rgb.png as its own PNG); TEXCOORD_0 is then the uv within the vertex's page
@@ -48,13 +48,19 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..bake.glb_reader import (
+    CHUNK_BIN,
+    CHUNK_JSON,
+    EXTENSION,
+    EXTENSION_VERSION,
+    GENERATOR,
+    GLB_MAGIC,
+    read_bundle_files,
+    written_by_us,
+)
 from ..errors import BadInputError
 from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, check_side, checked_limit
 
-EXTENSION = "NEURAS_bundle"
-EXTENSION_VERSION = 1
-GENERATOR = "neuras-distill"
-_MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942        # b"glTF", b"JSON", b"BIN\0" (little endian)
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _FLOAT, _UNSIGNED_SHORT, _UNSIGNED_INT = 5126, 5123, 5125
 _LINEAR, _LINEAR_MIPMAP_LINEAR, _CLAMP_TO_EDGE = 9729, 9987, 33071
@@ -99,12 +105,12 @@ def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_M
     """The GLB of ``bundle`` (a loaded :class:`~neuras_distill.bake.bundle.Bundle` with ``plain_rgb``) carrying
     ``files`` ({name: bytes}: the bundle folder's files, ``bundle.read_bundle_file_bytes``) losslessly; its
     images (one per atlas page) at most ``max_texture_size`` texels a side, else BadInputError."""
-    from .bundle import PLAIN_FILE
+    from ..bake.bundle import PLAIN_FILE
 
     if PLAIN_FILE not in files:
         raise BadInputError("the bundle has no plain RGB texture (plain_rgb.png; bundles baked by older versions "
                             "lack it): re-run the distillation to export it as glTF")
-    from .bundle import atlas_pages, encode_png_rgb
+    from ..bake.bundle import atlas_pages, encode_png_rgb
 
     pages = atlas_pages(bundle.manifest)
     check_side("plain_rgb", bundle.plain_rgb.shape[1], bundle.plain_rgb.shape[0], checked_limit(max_texture_size),
@@ -173,77 +179,8 @@ def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_M
     text += b" " * ((-len(text)) % 4)
     body = b"".join(binary.parts)
     total = 12 + 8 + len(text) + 8 + len(body)
-    return b"".join([struct.pack("<III", _MAGIC, 2, total), struct.pack("<II", len(text), _JSON), text,
-                     struct.pack("<II", len(body), _BIN), body])
-
-
-def _parse_glb(path: Path, data: bytes) -> tuple[dict, bytes]:
-    """(JSON document, binary chunk) of a GLB, or BadInputError."""
-    bad = BadInputError(f"{path} is not a glTF binary (.glb) file")
-    if len(data) < 20:
-        raise bad
-    magic, version, length = struct.unpack_from("<III", data, 0)
-    if magic != _MAGIC or version != 2 or length > len(data):
-        raise bad
-    json_len, json_type = struct.unpack_from("<II", data, 12)
-    if json_type != _JSON or 20 + json_len > length:
-        raise bad
-    try:
-        doc = json.loads(data[20:20 + json_len].decode("utf-8"))
-    except (ValueError, UnicodeDecodeError):
-        raise bad from None
-    if not isinstance(doc, dict):
-        raise bad
-    body = b""
-    at = 20 + json_len
-    if at + 8 <= length:
-        bin_len, bin_type = struct.unpack_from("<II", data, at)
-        if bin_type == _BIN and at + 8 + bin_len <= length:
-            body = data[at + 8:at + 8 + bin_len]
-    return doc, body
-
-
-def read_bundle_files(path) -> dict[str, bytes]:
-    """{file name: bytes} of the bundle a GLB carries in its ``NEURAS_bundle`` extension (unchecked: the
-    checksums are ``load_bundle``'s job). BadInputError when ``path`` is no GLB or carries no bundle."""
-    path = Path(path)
-    doc, body = _parse_glb(path, path.read_bytes())
-    ext = (doc.get("extensions") or {}).get(EXTENSION)
-    if not isinstance(ext, dict) or not isinstance(ext.get("files"), dict):
-        raise BadInputError(f"{path} is a glTF file without a neuras bundle (no {EXTENSION} extension)")
-    if ext.get("version") != EXTENSION_VERSION:
-        raise BadInputError(f"{path}: {EXTENSION} version {ext.get('version')} is not supported "
-                            f"(this version reads {EXTENSION_VERSION})")
-    views = doc.get("bufferViews") or []
-    files = {}
-    for name, i in ext["files"].items():
-        if not isinstance(i, int) or not 0 <= i < len(views) or not isinstance(views[i], dict):
-            raise BadInputError(f"{path}: {EXTENSION} names a missing buffer view for {name}")
-        start, size = views[i].get("byteOffset", 0), views[i].get("byteLength", -1)
-        if views[i].get("buffer") != 0 or not isinstance(start, int) or not isinstance(size, int) \
-                or start < 0 or size < 0 or start + size > len(body):
-            raise BadInputError(f"{path}: the buffer view of {name} lies outside the binary chunk")
-        files[name] = body[start:start + size]
-    return files
-
-
-def written_by_us(path) -> bool:
-    """Whether the file ``path`` is a GLB this module wrote (its asset.generator names neuras-distill)."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(20)
-            if len(head) < 20:
-                return False
-            magic, version, _ = struct.unpack_from("<III", head, 0)
-            json_len, json_type = struct.unpack_from("<II", head, 12)
-            if magic != _MAGIC or version != 2 or json_type != _JSON or json_len > 1 << 26:
-                return False
-            doc = json.loads(f.read(json_len).decode("utf-8"))
-    except (OSError, ValueError, UnicodeDecodeError):
-        return False
-    if not isinstance(doc, dict) or not isinstance(doc.get("asset"), dict):
-        return False
-    return str((doc.get("asset") or {}).get("generator", "")).startswith(GENERATOR + " ")
+    return b"".join([struct.pack("<III", GLB_MAGIC, 2, total), struct.pack("<II", len(text), CHUNK_JSON), text,
+                     struct.pack("<II", len(body), CHUNK_BIN), body])
 
 
 def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> Path:
@@ -254,7 +191,7 @@ def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SI
     writes a temporary file beside ``out`` and renames it into place: on any error nothing is left behind.
     Returns ``out``.
     """
-    from .bundle import load_bundle, read_bundle_file_bytes
+    from ..bake.bundle import load_bundle, read_bundle_file_bytes
 
     src, out = Path(bundle_path), Path(out)
     limit = checked_limit(max_texture_size)
@@ -285,4 +222,4 @@ def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SI
     return out
 
 
-__all__ = ["EXTENSION", "export_gltf", "glb_bytes", "read_bundle_files", "written_by_us"]
+__all__ = ["export_gltf", "glb_bytes"]

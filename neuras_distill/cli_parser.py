@@ -1,0 +1,163 @@
+"""The ``neuras-distill`` command line's grammar: :func:`build_parser` (every command and option). Parsing only:
+what a run command distills is :mod:`.run_inputs`'s, what each command does is :mod:`.cli`'s.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+#: The formats ``neuras-distill export --format`` writes.
+EXPORT_FORMAT_NAMES = ("gltf", "web")
+
+
+def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None) -> None:
+    p.add_argument("--out", default=default_out, help="run folder (default: runs/<scene>)")
+    p.add_argument("--preset", default=None, help="settings preset: object (default), fast, quality")
+    p.add_argument("--config", default=None, help="TOML file overriding settings (see configs/)")
+    p.add_argument("--face-budget", type=int, default=None, help="maximum faces after decimation")
+    p.add_argument("--steps", type=int, default=None,
+                   help="distillation steps (default 0: planned from the atlas within the time budget)")
+    p.add_argument("--texture-resolution", type=int, default=None, help="side of the feature atlas in texels")
+    p.add_argument("--view-dependence", choices=["auto", "on", "off"], default=None,
+                   help="view-direction input of the shader (auto: decided from the field)")
+    p.add_argument("--eval-width", type=int, default=None,
+                   help="width of the held-out frames that are timed and compared (0: the cameras' own size)")
+    p.add_argument("--skyboxes", choices=["auto", "on", "off"], default=None,
+                   help="neural skyboxes for what lies beyond the mesh (auto: decided from the field and cameras)")
+    p.add_argument("--fresh", action="store_true",
+                   help="ignore the stages stored by an earlier or killed run into the same --out (recompute all)")
+    p.add_argument("--no-keep-work", dest="keep_work", action="store_false",
+                   help="remove the work area (stored stages, G-buffers) after success instead of keeping it in "
+                        "<out>/work for the next run into the same folder")
+    p.add_argument("--device", default="auto", metavar="DEVICE",
+                   help="where the field, the teacher and training compute: auto (a GPU when torch sees one), "
+                        "cpu, cuda or cuda:N (default auto; the bundle is played by OpenGL)")
+    p.add_argument("--precision", choices=["fp32", "fp16"], default=None,
+                   help="field evaluation precision (default fp32; fp16: half hash-grid tables and MLPs with "
+                        "float32 compositing, as Instant-NGP evaluates: for GPUs)")
+    p.add_argument("--nproc", default=1, metavar="N",
+                   help="processes that share the teacher's volume rendering on the CPU (default 1: this one "
+                        "alone; N spawns N-1 workers that each hold a copy of the field)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="neuras-distill",
+        description="Turn a trained radiance field into a mesh + neural texture bundle that OpenGL plays in "
+                    "real time, and prove it (FPS before/after, error against the field).")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("demo", help="the embedded default scene through the whole pipeline")
+    p.add_argument("--kind", choices=["sdf", "density"], default="sdf", help="field type of the scene")
+    _add_run_options(p)
+
+    p = sub.add_parser("from-synthetic", help="an embedded synthetic scene through the whole pipeline")
+    p.add_argument("name",
+                   help="scene name (bunny, bunny-matte, sphere, torus, street, gradient-ball, city, city-small)")
+    p.add_argument("--kind", choices=["sdf", "density"], default=None,
+                   help="field type of the scene (default: the scene's own, sdf; density for gradient-ball)")
+    _add_run_options(p)
+
+    p = sub.add_parser("from-ngp", help="an Instant-NGP snapshot (.ingp / .msgpack) through the whole pipeline")
+    p.add_argument("snapshot", help="the snapshot instant-ngp saved (--save_snapshot)")
+    p.add_argument("--cameras", default=None,
+                   help="transforms.json to train and evaluate on (default: the cameras stored in the snapshot)")
+    p.add_argument("--foreground-box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="world box (transforms.json frame) holding the foreground (default: the snapshot's "
+                        "render box, or its occupied cells)")
+    p.add_argument("--latent-view", default="0",
+                   help="training image whose appearance latent is rendered (default 0, as instant-ngp), or 'mean'")
+    _add_run_options(p)
+
+    p = sub.add_parser("from-nerfstudio", help="a nerfstudio nerfacto run (config.yml) through the whole pipeline")
+    p.add_argument("run", help="the run's config.yml or its folder (outputs/<scene>/nerfacto/<timestamp>)")
+    p.add_argument("--cameras", default=None,
+                   help="the dataset's transforms.json (nerfstudio stores no cameras; default: an orbit around "
+                        "the foreground box)")
+    p.add_argument("--foreground-box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="box in the dataset's frame holding the foreground (default: where the density is)")
+    p.add_argument("--appearance", default="mean",
+                   help="appearance embedding: mean (nerfstudio's evaluation, default), zeros, or a training "
+                        "image's index")
+    p.add_argument("--image-size", default=None, metavar="WxH",
+                   help="image size of an ns-export cameras file given to --cameras (it stores poses only)")
+    p.add_argument("--focal", type=float, default=None, metavar="PIXELS",
+                   help="focal length in pixels of an ns-export cameras file given to --cameras")
+    _add_run_options(p)
+
+    p = sub.add_parser("from-sdf", help="a NeuS / hash-grid NeuS checkpoint (.pth / .ckpt) through the pipeline")
+    p.add_argument("checkpoint", help="NeuS ckpt_XXXXXX.pth or instant-nsr-pl .ckpt")
+    p.add_argument("--cameras", default=None,
+                   help="NeuS cameras_sphere.npz (also sets the world frame) or a transforms.json")
+    p.add_argument("--image-size", default=None, metavar="WxH",
+                   help="image size of the cameras_sphere.npz views (it does not store one)")
+    p.add_argument("--model-config", default=None,
+                   help="instant-nsr-pl parsed.yaml of the run (grid and network sizes)")
+    p.add_argument("--density", choices=["neus", "laplace"], default="neus",
+                   help="SDF to opacity: NeuS logistic (default) or VolSDF Laplace")
+    _add_run_options(p)
+
+    p = sub.add_parser("check", help="probe a field for stiff and extreme cases before distilling it")
+    p.add_argument("source", help="checkpoint path (.ingp / .msgpack / .pth / .ckpt), synthetic:NAME or extreme:NAME")
+    p.add_argument("--kind", choices=["sdf", "density"], default=None, help="synthetic scenes: field type")
+    p.add_argument("--cameras", default=None,
+                   help="transforms.json or NeuS cameras_sphere.npz (as from-ngp / from-sdf)")
+    p.add_argument("--foreground-box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1", help="as from-ngp")
+    p.add_argument("--latent-view", default=None, help="as from-ngp")
+    p.add_argument("--image-size", default=None, metavar="WxH", help="as from-sdf")
+    p.add_argument("--model-config", default=None, help="as from-sdf (instant-nsr-pl parsed.yaml)")
+    p.add_argument("--density", choices=["neus", "laplace"], default=None, help="as from-sdf")
+    p.add_argument("--preset", default=None, help="settings preset the adaptations are relative to")
+    p.add_argument("--config", default=None, help="TOML settings the adaptations are relative to")
+    p.add_argument("--samples", type=int, default=64, help="probe lattice points per axis (default 64)")
+    p.add_argument("--rays", type=int, default=512, help="probe rays (default 512)")
+    p.add_argument("--json", default=None, metavar="PATH", help="also write the report as JSON")
+
+    p = sub.add_parser("view", help="play a bundle in a window (orbit, pan, zoom, fly; keys switch what is shown), "
+                                     "or render an orbit to PNG frames headless (--orbit)")
+    p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle) or .glb; the window starts at the first "
+                                  "held-out camera of the run's cameras.json beside it")
+    p.add_argument("--orbit", action="store_true", help="render an orbit around the bundle to PNG frames "
+                                                        "(headless, no window)")
+    p.add_argument("--frames", type=int, default=36, help="--orbit: frames in the orbit")
+    p.add_argument("--width", type=int, default=512, help="--orbit: frame width")
+    p.add_argument("--height", type=int, default=512, help="--orbit: frame height")
+    p.add_argument("--out", default=None, help="--orbit: folder for the frames (default: <bundle>/../orbit)")
+    p.add_argument("--screenshot", default=None, metavar="PATH",
+                   help="window: draw a few frames at the start camera, save the window as PNG and exit")
+    p.add_argument("--camera", type=int, default=0, help="window: held-out camera to start at (default 0)")
+    p.add_argument("--mode", default="neural", metavar="MODE",
+                   help="window: what to show first: neural, plain, uv or index (keys 1-4 switch)")
+    p.add_argument("--no-skybox", action="store_true", help="window: start with the skybox pass off (key K)")
+
+    p = sub.add_parser("bench", help="error against run time for a finished run: the field at several step "
+                                        "counts, the plain-texture floor and bundle variants distilled from the "
+                                        "run's stored stages, with the Pareto front (writes RUN_DIR/bench/)")
+    p.add_argument("run", metavar="RUN_DIR", help="a run folder (the --out of demo / from-synthetic / from-ngp / "
+                                                  "from-sdf)")
+    p.add_argument("--resolutions", default="640x360,1920x1080", metavar="WxH,...",
+                   help="frame sizes to score and time at (the held-out cameras' aspect ratio; default "
+                        "640x360,1920x1080)")
+    p.add_argument("--variants", default=None, metavar="NAME,...",
+                   help="bundle variants to distil (default all: atlas-half, atlas-double, mlp-8, mlp-32, "
+                        "mlp-two-hidden, no-view, no-vq, faces-quarter, faces-half)")
+    p.add_argument("--target-ms", type=float, default=None,
+                   help="frame time the recommendation aims at (default 16.7 ms, 60 Hz)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file; "
+                                         "web: a static folder that plays it in a browser)")
+    p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
+    p.add_argument("--format", required=True, metavar="FORMAT",
+                   help=f"output format: {', '.join(EXPORT_FORMAT_NAMES)} (gltf: glTF 2.0 binary, the mesh with its "
+                        "plain RGB texture, unlit, plus the whole neural bundle inside; load_bundle reads it; web: "
+                        "index.html + WebGL2 player + data, the same shaders in GLSL ES 3.00; view it with "
+                        "`python -m http.server` inside the folder, index.html?camera=N plays held-out camera N)")
+    p.add_argument("--out", required=True, help="output file or folder (gltf: a .glb path; web: a folder); an "
+                                                "existing one is replaced only when neuras-distill wrote it")
+    p.add_argument("--max-texture-size", default=None, metavar="N",
+                   help="largest texture side the export writes, in texels (default 4096, a side WebGL2 browsers "
+                        "hold in practice): a codebook is wrapped into more codes per row to fit; an atlas page above "
+                        "it exits 2 (bake with a smaller texture.page_size, or raise N for a target that holds it)")
+    return parser
