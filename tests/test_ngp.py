@@ -279,6 +279,41 @@ def test_large_aabb_scale_foreground_box_and_unbounded_flag(tmp_path):
     assert override.aabb.tolist() == box
 
 
+
+def test_outer_cascades_render_as_a_dense_march_of_the_whole_network_cube(tmp_path):
+    """aabb_scale 4 with content in the outer cascades (a wall behind the object): the teacher marches the box and
+    the network cube around it (``far_region``) and draws what a dense march of the whole cube draws; clipped to
+    the box it misses the wall."""
+    from neuras_distill.render.volume import VolumeRenderer
+
+    dg = np.zeros((3, GRID_SIZE, GRID_SIZE, GRID_SIZE), np.float32)   # ngp axes; cascade c spans 0.5 +- 2^(c-1)
+    dg[0, 56:72, 56:72, 56:72] = 1.0                                 # the object, in the unit cube's middle
+    dg[2, 2:10, 16:112, 16:112] = 1.0                                # a wall near ngp x = -1.3
+    grid = HashGridConfig(n_levels=4, n_features_per_level=2, log2_hashmap_size=12, base_resolution=4,
+                          per_level_scale=2.0)
+    path = save(make_tree(grid=grid, aabb_scale=4, density_grid=dg, seed=3), tmp_path / "u.ingp")
+    field = NgpField(read_snapshot(path))
+    assert field.unbounded and field.far_region is not None
+    frame = field.frame
+    cube = frame.ngp_box_to_world([-1.5] * 3, [2.5] * 3)
+    whole = NgpField(read_snapshot(path), foreground_box=cube.tolist())      # the whole cube as its box
+    assert not whole.unbounded and whole.far_region is None
+    eye = frame.ngp_to_world(torch.tensor([[1.8, 0.5, 0.5]], dtype=torch.float64))[0]   # inside cascade 2
+    target = frame.ngp_to_world(torch.tensor([[0.5, 0.5, 0.5]], dtype=torch.float64))[0]
+    from neuras_distill.render.cameras import look_at
+    up = frame.ngp_to_world(torch.tensor([[0.5, 1.5, 0.5]], dtype=torch.float64))[0] - target
+    cams = Cameras(look_at(eye, target, up)[None].float(), 15.0, 15.0, 8.0, 6.0, 16, 12)
+    reference = VolumeRenderer(whole, num_steps=2048).render(cams, 0)
+    teacher = VolumeRenderer(field, num_steps=256, far_steps=512).render(cams, 0)
+    clipped = VolumeRenderer(field, num_steps=256).render(cams, 0)
+
+    def psnr(a, b):
+        return float(-10 * np.log10(max(float(np.mean((a - b) ** 2)), 1e-12)))
+    wall_share = float(np.mean(np.abs(reference["rgb"] - clipped["rgb"]).max(-1) > 0.05))
+    assert wall_share > 0.2                                   # the wall shows in a fifth of the frame or more
+    assert psnr(clipped["rgb"], reference["rgb"]) < 25.0      # clipped to the box, it is missing
+    assert psnr(teacher["rgb"], reference["rgb"]) > 35.0      # with the far region, it is drawn
+
 # ------------------------------------------------------------------------------------------- bad input
 def _cli(args):
     from neuras_distill.cli import main

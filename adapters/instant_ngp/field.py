@@ -25,6 +25,7 @@ from neuras_distill.components.tcnn import HashGridEncoding, TcnnMLP, sh_encode_
 from neuras_distill.errors import require
 from neuras_distill.fields.base import evaluate_chunked
 from neuras_distill.render.cameras import Cameras
+from neuras_distill.render.far_region import FarRegion
 from neuras_distill.render.occupancy import OccupancyGrid
 
 from .frames import NgpFrame
@@ -53,7 +54,8 @@ class NgpField(torch.nn.Module):
 
     Field members: ``kind = "density"``, ``aabb`` (2, 3) world foreground box, ``geometry``, ``radiance``,
     ``background_color`` (3,), ``cameras`` (training cameras, world frame) or None, ``surface_level``
-    (σ_world of instant-ngp's mesh threshold), ``unbounded``, ``occupancy_grid(resolution)``.
+    (σ_world of instant-ngp's mesh threshold), ``unbounded``, ``far_region`` (when unbounded: the network cube
+    beyond the box), ``occupancy_grid(resolution)``.
     """
 
     kind = "density"
@@ -107,6 +109,7 @@ class NgpField(torch.nn.Module):
         self.occupied_fraction = float(self._occ.float().mean()) if self._occ is not None else None
 
         self.aabb, self.unbounded, self.foreground_reason = self._foreground(s, foreground_box)
+        self.far_region = self._far_region(s) if self.unbounded else None
         self.cameras = self._cameras(s)
 
     # ------------------------------------------------------------------ field contract
@@ -251,6 +254,16 @@ class NgpField(torch.nn.Module):
                     unbounded = True
                     break
         return box.float(), unbounded, reason
+
+    def _far_region(self, s: NgpSnapshot) -> FarRegion:
+        """The network cube beyond the foreground box (instant-ngp's outer cascades, ``aabb_scale`` > 1), which the
+        teacher marches in front of and behind the box (``render/far_region.py``). The field is zero outside the
+        cube, so the far plane only has to lie beyond it: twice the cube's diagonal (world units) covers a camera
+        anywhere within one diagonal of the cube. Sampling is linear out to half the cube's side and uniform in
+        disparity beyond: a pivot at the foreground box's size spaced the samples a wall in the outer cascade
+        needs ten times too far apart (the cube is bounded, not contracted)."""
+        side = float(s.aabb_scale) / float(self.frame.scale)
+        return FarRegion(near=0.0, far=2.0 * math.sqrt(3.0) * side, pivot=0.5 * side)
 
     def _cameras(self, s: NgpSnapshot) -> Cameras | None:
         if not s.cameras:
