@@ -19,7 +19,7 @@ HOMES = {
     "moderngl": "neuras_distill/playback/context.py",
     "pymeshlab": "neuras_distill/geometry/cleanup.py",
     "xatlas": "neuras_distill/geometry/unwrap.py",
-    "skimage": "neuras_distill/geometry/marching.py",
+    "skimage": "neuras_distill/geometry/lattice_mc.py",
     "glfw": "neuras_distill/playback/window.py",
     "flip_evaluator": "neuras_distill/flip_metric.py",
     "matplotlib": "neuras_distill/pipeline/report.py",
