@@ -60,8 +60,19 @@ def browser_missing() -> str | None:
     return None
 
 
+@pytest.fixture
+def browser(chromium_session):
+    """The session's headless Chromium for one test, left on a blank page after it: a player page left open keeps
+    drawing frames on SwiftShader (requestAnimationFrame), and took a core from every test after it (the resume
+    tests ran 2.3x slower in the suite than alone)."""
+    try:
+        yield chromium_session
+    finally:
+        chromium_session.get("about:blank")
+
+
 @pytest.fixture(scope="session")
-def browser():
+def chromium_session():
     """One headless Chromium (the system's, through selenium and the system chromedriver; WebGL2 on
     SwiftShader) for every browser test of the run; skipped without it (failed under ``CI=true``)."""
     _require_tool(browser_missing())
