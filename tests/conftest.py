@@ -62,7 +62,7 @@ def browser_missing() -> str | None:
 
 @pytest.fixture
 def browser(chromium_session):
-    """The session's headless Chromium for one test, left on a blank page after it: a player page left open keeps
+    """The shared headless Chromium for one test, left on a blank page after it: a player page left open keeps
     drawing frames on SwiftShader (requestAnimationFrame), and took a core from every test after it (the resume
     tests ran 2.3x slower in the suite than alone)."""
     try:

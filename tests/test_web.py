@@ -296,7 +296,8 @@ def test_a_texture_that_cannot_fit_the_limit_exits_2_naming_it_and_writes_nothin
 
 
 # ------------------------------------------------------------------------------------------ the browser
-# the browser and the HTTP server are tests/conftest.py's fixtures ``browser`` (one Chromium a session) and ``http_root``
+# the browser and the HTTP server are tests/conftest.py's fixtures ``browser`` (one Chromium for the whole run)
+# and ``http_root``
 @pytest.fixture(scope="module")
 def server(http_root):
     return http_root
