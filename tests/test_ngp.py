@@ -280,6 +280,7 @@ def test_large_aabb_scale_foreground_box_and_unbounded_flag(tmp_path):
 
 
 
+@pytest.mark.slow
 def test_outer_cascades_render_as_a_dense_march_of_the_whole_network_cube(tmp_path):
     """aabb_scale 4 with content in the outer cascades (a wall behind the object): the teacher marches the box and
     the network cube around it (``far_region``) and draws what a dense march of the whole cube draws; clipped to
