@@ -5,11 +5,12 @@ import inspect
 
 import pytest
 
-from neuras_distill.config import SkyboxConfig, TextureConfig, TrainConfig
+from neuras_distill.config import SkyboxConfig, TeacherConfig, TextureConfig, TrainConfig
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.shader import MLPShader
 from neuras_distill.neural.skybox import SkyboxModel
 from neuras_distill.neural.train import fit
+from neuras_distill.render.volume import VolumeRenderer
 
 CASES = [
     (NeuralTextureModel.__init__, TextureConfig(),
@@ -20,6 +21,8 @@ CASES = [
                                             "hidden": "hidden"}),
     (fit, TrainConfig(), {"lr": "lr", "texture_lr_scale": "texture_lr_scale", "batch_patches": "batch_patches",
                           "patch": "patch", "ssim_weight": "ssim_weight", "vq_warmup": "vq_warmup", "seed": "seed"}),
+    (VolumeRenderer.__init__, TeacherConfig(), {"num_steps": "num_steps",
+                                                "occupancy_resolution": "occupancy_resolution"}),
 ]
 
 

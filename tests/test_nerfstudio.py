@@ -329,7 +329,8 @@ def test_a_nerfacto_run_distills_end_to_end(tmp_path):
     field = load_field(RUN / "config.yml")
     cams = Cameras.from_transforms(RUN / "transforms.json")[::4]
     result = nd.distill(field, cams, config={"cameras": {"test_every": 6}, "teacher": {"num_steps": 128,
-                                                                                         "train_width": 96},
+                                                                                         "train_width": 96,
+                                                                                         "occupancy_resolution": 64},
                                              "geometry": {"grid_resolution": 96, "face_budget": 6000},
                                              "texture": {"resolution": 192, "num_codes": 256},
                                              "train": {"steps": 300}, "eval": {"width": 96, "fps_frames": 5,

@@ -60,7 +60,8 @@ def test_the_teacher_draws_nerfstudios_picture_inside_and_outside_the_box(orbit)
     sky that a renderer clipped to the box leaves to the background colour."""
     field, cams, rgb, _ = orbit
     teacher = TeacherConfig()
-    whole = VolumeRenderer(field, num_steps=teacher.num_steps, far_steps=teacher.far_steps)
+    whole = VolumeRenderer(field, num_steps=teacher.num_steps, far_steps=teacher.far_steps,
+                           occupancy_resolution=64)     # the far region needs no grid; 8x faster to build
     boxed = VolumeRenderer(field, num_steps=teacher.num_steps, far_steps=0, occupancy=whole.occupancy)
     img, clipped, ref, opacity = [], [], [], []
     for i in (0, 3):

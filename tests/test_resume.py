@@ -17,14 +17,17 @@ import pytest
 
 pytestmark = [pytest.mark.gl, pytest.mark.slow]
 
-#: Small enough for the suite, long enough in training (a few seconds) to be killed in it.
-CONFIG = """
+#: Training steps of the small run: long enough in training (a few seconds) to be killed in it.
+STEPS = 600
+
+#: Small enough for the suite.
+CONFIG = f"""
 [cameras]
 num_views = 12
 width = 96
 height = 96
 [train]
-steps = 1500
+steps = {STEPS}
 checkpoint_every_s = 0.2
 [texture]
 resolution = 128
@@ -87,14 +90,14 @@ def test_a_run_killed_during_distillation_resumes_and_loses_nothing(runs):
     report = json.loads((out / "report.json").read_text())
     resumed = report["resumed"]
     assert {"teacher", "plan", "geometry", "gbuffer"} <= set(resumed["stages"]) and "distill" not in resumed["stages"]
-    assert resumed["from_step"] and 0 < resumed["from_step"] < 1500
+    assert resumed["from_step"] and 0 < resumed["from_step"] < STEPS
     assert "resumed: reused teacher" in result.stderr and f"from step {resumed['from_step']}" in result.stderr
     whole = json.loads((root / "whole" / "report.json").read_text())
-    print(f"killed at step {resumed['from_step']} of 1500; resumed PSNR {report['psnr']:.3f} dB, uninterrupted "
+    print(f"killed at step {resumed['from_step']} of {STEPS}; resumed PSNR {report['psnr']:.3f} dB, uninterrupted "
           f"{whole['psnr']:.3f} dB; work area {report['work_area']['bytes'] / 1e6:.1f} MB")
     assert abs(report["psnr"] - whole["psnr"]) <= 0.2, (report["psnr"], whole["psnr"])
     assert report["source"]["command"][:3] == ["neuras-distill", "from-synthetic", "sphere"]
-    assert report["train_summary"]["steps"] == whole["train_summary"]["steps"] == 1500
+    assert report["train_summary"]["steps"] == whole["train_summary"]["steps"] == STEPS
     leftovers = [p.name for p in root.iterdir() if p.name.startswith(".")]
     assert leftovers == [], leftovers
     assert (out / "work").is_dir() and report["work_area"]["bytes"] > 0

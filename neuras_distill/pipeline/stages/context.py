@@ -123,7 +123,8 @@ class RunContext:
             from ...render.volume import VolumeRenderer
 
             self._volume_renderer = VolumeRenderer(self.field, num_steps=self.cfg.teacher.num_steps,
-                                                   far_steps=self.cfg.teacher.far_steps)
+                                                   far_steps=self.cfg.teacher.far_steps,
+                                                   occupancy_resolution=self.cfg.teacher.occupancy_resolution)
         return self._volume_renderer
 
     @property
