@@ -13,19 +13,24 @@ Region metrics split a view by the field's own opacity (H, W) of that view:
   0.02 < opacity < 0.98 (the soft fringe);
 - interior: pixels with opacity > 0.98 that are not in the band;
 - hole: the field is opaque (opacity > 0.5) but the bundle's mesh covers no pixel there.
+A third split reads the field's own image: the smooth region is every pixel whose 5x5 neighbourhood has a luma
+standard deviation below 0.01 (flat walls, sky, plain floor). Mottling shows there first.
 FLIP lives in ``flip_metric`` (the one module that imports flip-evaluator) and is re-exported here.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt, gaussian_filter
+from scipy.ndimage import distance_transform_edt, gaussian_filter, uniform_filter
 
 from .flip_metric import flip  # noqa: F401  (re-exported: metrics.flip)
 
 MAX_PSNR = 100.0
 OPAQUE = 0.5          # the field's mask: opacity > OPAQUE
 FRINGE = (0.02, 0.98)  # soft fringe: FRINGE[0] < opacity < FRINGE[1]; interior: opacity > FRINGE[1]
+SMOOTH_WINDOW = 5      # side in pixels of the neighbourhood ``smooth_mask`` measures
+SMOOTH_LUMA_STD = 0.01  # a pixel is smooth when its neighbourhood's luma standard deviation is below this
+LUMA_WEIGHTS = (0.2126, 0.7152, 0.0722)  # Rec. 709 luma of linear RGB
 
 
 def psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:
@@ -107,6 +112,19 @@ def interior_mask(opacity: np.ndarray, band_mask: np.ndarray | None = None) -> n
     op = np.asarray(opacity, dtype=np.float32)
     band_mask = silhouette_band(op) if band_mask is None else band_mask
     return (op > FRINGE[1]) & ~band_mask
+
+
+def smooth_mask(reference: np.ndarray, window: int = SMOOTH_WINDOW,
+                threshold: float = SMOOTH_LUMA_STD) -> np.ndarray:
+    """(H, W) bool: pixels of the (H, W, 3) ``reference`` (the field's image) whose ``window`` x ``window``
+    neighbourhood (clipped at the frame's edge by reflection) has a luma standard deviation below ``threshold``."""
+    ref = np.asarray(reference, dtype=np.float64)
+    if ref.ndim != 3 or ref.shape[-1] != 3:
+        raise ValueError(f"smooth_mask: expected an (H, W, 3) image, got {ref.shape}")
+    luma = ref @ np.asarray(LUMA_WEIGHTS)
+    mean = uniform_filter(luma, window, mode="reflect")
+    var = uniform_filter(luma * luma, window, mode="reflect") - mean * mean
+    return np.sqrt(np.maximum(var, 0.0)) < threshold
 
 
 def hole_mask(opacity: np.ndarray, coverage: np.ndarray) -> np.ndarray:

@@ -67,12 +67,13 @@ def test_fidelity_keys(small_run):
     n = rep["views"]["test"]
     assert n >= 1
     assert rep["views"]["cameras"] == "given"                      # small_run passes its cameras
-    for key in ("flip", "psnr_interior", "psnr_silhouette", "hole_fraction"):
+    for key in ("flip", "psnr_interior", "psnr_silhouette", "psnr_smooth", "smooth_fraction", "hole_fraction"):
         assert np.isfinite(rep[key]), key
         assert len(rep[f"{key}_per_view"]) == n and all(np.isfinite(v) for v in rep[f"{key}_per_view"]), key
     assert 0.0 < rep["flip"] < 0.2                       # a close match, but never a perfect 0
     assert 20.0 < rep["psnr_silhouette"] < rep["psnr_interior"] <= 100.0
     assert 0.0 <= rep["hole_fraction"] < 0.01            # the sphere's mesh covers what the field shows
+    assert 0.3 < rep["smooth_fraction"] < 1.0 and rep["psnr_smooth"] > rep["psnr_silhouette"]
     assert rep["silhouette_band_px"] == 2                # 128x128: max(2, round(0.004 * 181))
     assert len(rep["crops"]) == n and all(set(c) == {"a", "b"} for c in rep["crops"])
     assert rep["crops"][0]["a"]["box"] == [0, 0, 128, 128]   # smaller than 256: the whole view

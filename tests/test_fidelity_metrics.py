@@ -131,6 +131,27 @@ def test_region_psnr_separates_band_from_interior():
     assert entry["crops"]["a"]["box"] == [0, 0, 96, 96]          # smaller than 256: the whole image
 
 
+def test_smooth_region_is_where_the_field_is_flat_and_scores_mottling_there():
+    # a flat wall (left) next to a fine checker (right): the wall is smooth, the checker is not
+    field = np.full((64, 64, 3), 0.5, np.float32)
+    field[:, 32:] = np.where((np.add.outer(np.arange(64), np.arange(32)) % 2)[..., None] == 1, 0.2, 0.8)
+    smooth = metrics.smooth_mask(field)
+    assert smooth[:, :29].all() and not smooth[:, 32:].any()   # within 2 px of the checker the window sees it
+    # luma std just below / above the threshold: a ramp whose 5x5 std is known (uniform over 5 values)
+    ramp = np.broadcast_to((np.arange(64) % 5 * 0.006)[None, :, None], (64, 64, 3)).astype(np.float64)
+    assert metrics.smooth_mask(ramp, threshold=0.0086)[10:54, 10:54].all()       # std = 0.006 * sqrt(2) = 0.00849
+    assert not metrics.smooth_mask(ramp, threshold=0.0084)[10:54, 10:54].any()
+    # mottling on the wall: +-0.02 blotches lower the smooth score and leave the checker's pixels alone
+    bundle = field.copy()
+    blotches = (np.arange(64)[:, None] // 8 + np.arange(32)[None, :] // 8) % 2 == 1
+    bundle[:, :32] += np.where(blotches, 0.02, -0.02)[..., None]
+    entry, _ = evaluate.view_fidelity(bundle, field, np.ones((64, 64), np.float32), np.ones((64, 64), bool))
+    assert entry["psnr_smooth"] == pytest.approx(-10 * np.log10(0.02 ** 2), abs=1e-3)     # 33.98 dB
+    assert entry["smooth_fraction"] == pytest.approx(smooth.mean())
+    with pytest.raises(ValueError, match="H, W, 3"):
+        metrics.smooth_mask(field[..., 0])
+
+
 def test_empty_regions_give_none_not_a_perfect_score():
     field = np.full((32, 32, 3), 0.5, np.float32)
     empty = np.zeros((32, 32), np.float32)

@@ -4,8 +4,9 @@ Times both sides on this machine ("before" = volume rendering the field, "after"
 bundle), computes PSNR/SSIM of the bundle against the field, and the error-against-run-time points.
 
 Fidelity beyond one PSNR (``fidelity``): FLIP per view, PSNR over the silhouette band and over the interior,
-and the fraction of pixels where the field is opaque but the bundle's mesh covers nothing (regions defined in
-``metrics``: they come from the field's own opacity of each view). For every view it also picks two crop
+PSNR over the smooth region (where the field's own image is locally flat: mottling shows there), and the fraction
+of pixels where the field is opaque but the bundle's mesh covers nothing (regions defined in ``metrics``: they come
+from the field's own opacity and image of each view). For every view it also picks two crop
 windows at native resolution: the silhouette-band and the interior area with the highest FLIP.
 """
 
@@ -148,7 +149,8 @@ def view_fidelity(bundle_image: np.ndarray, field_image: np.ndarray, opacity: np
                   coverage: np.ndarray, band: int | None = None) -> tuple[dict, np.ndarray]:
     """Fidelity of one view: (H,W,3) bundle and field images, the field's (H,W) opacity (its foreground box's,
     as seen) and the bundle's (H,W) bool coverage. Returns ({"flip", "psnr_inside_box", "psnr_outside_box",
-    "flip_inside_box", "flip_outside_box", "psnr_interior", "psnr_silhouette", "hole_fraction", "crops"},
+    "flip_inside_box", "flip_outside_box", "psnr_interior", "psnr_silhouette", "psnr_smooth", "smooth_fraction",
+    "hole_fraction", "crops"},
     (H,W) float32 FLIP map): inside the box = pixels whose field opacity inside the foreground box is at least
     :data:`INSIDE_BOX_OPACITY`, outside = the rest (far ground, backdrop, sky or background). Region PSNRs are None
     for an empty region; "crops" holds the windows ``worst_window`` picks on the band ("a") and the interior ("b"),
@@ -165,6 +167,7 @@ def view_fidelity(bundle_image: np.ndarray, field_image: np.ndarray, opacity: np
             window = (slice(y0, y0 + ch), slice(x0, x0 + cw))
             crops[key] = {"region": name, "box": box, "flip": float(flip_map[window][region[window]].mean())}
     inside = np.asarray(opacity) >= INSIDE_BOX_OPACITY
+    smooth = metrics.smooth_mask(field_image)
     return {"flip": mean_flip,
             "psnr_inside_box": metrics.region_psnr(bundle_image, field_image, inside),
             "psnr_outside_box": metrics.region_psnr(bundle_image, field_image, ~inside),
@@ -172,6 +175,8 @@ def view_fidelity(bundle_image: np.ndarray, field_image: np.ndarray, opacity: np
             "flip_outside_box": float(flip_map[~inside].mean()) if (~inside).any() else None,
             "psnr_interior": metrics.region_psnr(bundle_image, field_image, interior),
             "psnr_silhouette": metrics.region_psnr(bundle_image, field_image, band_mask),
+            "psnr_smooth": metrics.region_psnr(bundle_image, field_image, smooth),
+            "smooth_fraction": float(smooth.mean()),
             "hole_fraction": metrics.hole_fraction(opacity, coverage),
             "crops": crops}, flip_map
 
@@ -186,16 +191,16 @@ def fidelity(bundle_images: list[np.ndarray], field_images: list[np.ndarray], op
              coverages: list[np.ndarray], band: int | None = None) -> tuple[dict, list[np.ndarray]]:
     """``view_fidelity`` of every view, and means over views (means of per-view values; region PSNRs over the
     views where the region is not empty). Returns (report entries: flip, psnr_interior, psnr_silhouette,
-    hole_fraction, psnr_inside_box, psnr_outside_box, flip_inside_box, flip_outside_box, each with a
-    ``_per_view`` list, silhouette_band_px, crops), [(H,W) float32 FLIP map]."""
+    psnr_smooth, smooth_fraction, hole_fraction, psnr_inside_box, psnr_outside_box, flip_inside_box,
+    flip_outside_box, each with a ``_per_view`` list, silhouette_band_px, crops), [(H,W) float32 FLIP map]."""
     per_view, maps = [], []
     for b, f, op, cov in zip(bundle_images, field_images, opacities, coverages):
         entry, flip_map = view_fidelity(b, f, op, cov, band)
         per_view.append(entry)
         maps.append(flip_map)
     out: dict = {}
-    for key in ("flip", "psnr_interior", "psnr_silhouette", "hole_fraction", "psnr_inside_box", "psnr_outside_box",
-                "flip_inside_box", "flip_outside_box"):
+    for key in ("flip", "psnr_interior", "psnr_silhouette", "psnr_smooth", "smooth_fraction", "hole_fraction",
+                "psnr_inside_box", "psnr_outside_box", "flip_inside_box", "flip_outside_box"):
         values = [v[key] for v in per_view]
         out[key] = _mean(values)
         out[f"{key}_per_view"] = values

@@ -26,6 +26,10 @@ def _db(x) -> str:
     return "n/a" if x is None else f"{x:.2f} dB"
 
 
+def _share(x) -> str:
+    return "n/a" if x is None else f"{100 * x:.0f}%"
+
+
 def _flip(x) -> str:
     return "n/a" if x is None else f"{x:.4f}"
 
@@ -37,6 +41,8 @@ def _fidelity_rows(rep: dict) -> list[tuple[str, str, str]]:
     return [("FLIP vs field (0 = same)", "reference", f"{rep['flip']:.4f}"),
             ("PSNR interior / silhouette", "reference",
              f"{_db(rep['psnr_interior'])} / {_db(rep['psnr_silhouette'])}"),
+            ("PSNR smooth region (field locally flat)", "reference",
+             f"{_db(rep.get('psnr_smooth'))} on {_share(rep.get('smooth_fraction'))} of pixels"),
             ("PSNR / FLIP inside the box", "reference",
              f"{_db(rep.get('psnr_inside_box'))} / {_flip(rep.get('flip_inside_box'))}"),
             ("PSNR / FLIP outside the box", "reference",
@@ -183,11 +189,12 @@ def _fidelity_blocks(rep: dict) -> list[tuple]:
     if "flip" not in rep:
         return []
     band = rep.get("silhouette_band_px")
+    smooth = rep.get("psnr_smooth_per_view") or [None] * len(rep["flip_per_view"])
     rows = [(f"{i}", f"{fl:.4f}", _db(rep["psnr_per_view"][i]), _db(rep["psnr_interior_per_view"][i]),
-             _db(rep["psnr_silhouette_per_view"][i]), f"{100 * rep['hole_fraction_per_view'][i]:.3f}%")
+             _db(rep["psnr_silhouette_per_view"][i]), _db(smooth[i]), f"{100 * rep['hole_fraction_per_view'][i]:.3f}%")
             for i, fl in enumerate(rep["flip_per_view"])]
     rows.append(("mean", f"{rep['flip']:.4f}", _db(rep["psnr"]), _db(rep["psnr_interior"]),
-                 _db(rep["psnr_silhouette"]), f"{100 * rep['hole_fraction']:.3f}%"))
+                 _db(rep["psnr_silhouette"]), _db(rep.get("psnr_smooth")), f"{100 * rep['hole_fraction']:.3f}%"))
     crops = []
     for i, view_crops in enumerate(rep.get("crops") or []):
         for key, name in CROP_NAMES.items():
@@ -206,11 +213,13 @@ def _fidelity_blocks(rep: dict) -> list[tuple]:
                  "(opacity > 0.5), on either side, plus every pixel with 0.02 < opacity < 0.98 (the soft fringe); "
                  "the width is max(2, round(0.004 x image diagonal)). "
                  "**Interior**: opacity > 0.98 and not in the band. "
+                 "**Smooth**: pixels whose 5x5 neighbourhood in the field's image has a luma standard deviation "
+                 "below 0.01 (flat walls, sky, plain floor: where mottling shows). "
                  "**Holes**: pixels where the field is opaque (opacity > 0.5) but the bundle's mesh "
                  "covers nothing (rasterized as played), as a fraction of all held-out pixels. "
                  "**FLIP**: NVIDIA's LDR-FLIP perceptual error (0 = no visible difference, 1 = maximal), at its "
                  "default 67 pixels per degree; means are means of per-view values."),
-        ("table", ("view", "FLIP", "PSNR", "PSNR interior", "PSNR silhouette", "holes"), rows),
+        ("table", ("view", "FLIP", "PSNR", "PSNR interior", "PSNR silhouette", "PSNR smooth", "holes"), rows),
         ("para", "Crops at native resolution (field | bundle | FLIP, magma: black 0 to pale yellow 1), each "
                  "centred where the FLIP map, box-filtered over 32x32 pixels of one region, is highest:"),
         ("list", crops),

@@ -111,7 +111,7 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "parity_psnr": ev.parity,
         "psnr_per_view": ev.quality["psnr_per_view"],
         "ssim_per_view": ev.quality["ssim_per_view"],
-        **ev.fidelity,  # flip, psnr_interior, psnr_silhouette, hole_fraction (+ _per_view), silhouette_band_px, crops
+        **ev.fidelity,  # flip, psnr_interior / _silhouette / _smooth, hole_fraction (+ _per_view), crops
         "fidelity_seconds": ev.fidelity_seconds,
         "evaluate_seconds": {k: round(v, 3) for k, v in ev.part_seconds.items()},
         "distill_seconds": None,
