@@ -17,6 +17,7 @@ import os
 import numpy as np
 import torch
 
+from neuras_distill.config import TrainConfig
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.train import fit
 from neuras_distill.parallel import RenderPool
@@ -54,7 +55,7 @@ def main() -> None:
             for nproc in (1, args.nproc):
                 torch.manual_seed(0)
                 model = NeuralTextureModel(512, 512, feature_dim=8, num_codes=256)
-                kwargs = dict(steps=args.steps, batch_patches=batch, patch=16, progress=False)
+                kwargs = dict(steps=args.steps, config=TrainConfig(batch_patches=batch, patch=16), progress=False)
                 if nproc == 1:
                     log = fit(model, *data, num_threads=os.cpu_count(), **kwargs)
                 else:

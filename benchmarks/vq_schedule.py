@@ -44,10 +44,13 @@ def prepare(args):
 
 
 def gbuffers(field, train, test, side: int, args):
-    from neuras_distill.geometry.extract import extract_mesh
+    from neuras_distill.config import GeometryConfig
+    from neuras_distill.geometry.extract import extract_surface, unwrap_surface
     from neuras_distill.playback.rasterize import rasterize_gbuffer
 
-    mesh = extract_mesh(field, train, grid_resolution=args.grid, face_budget=args.faces, texture_resolution=side)
+    surface = extract_surface(field, train, GeometryConfig(grid_resolution=args.grid, face_budget=args.faces),
+                              trial_resolution=side)
+    mesh = unwrap_surface(surface, side)
     return (rasterize_gbuffer(mesh, train), rasterize_gbuffer(mesh, test),
             np.stack([train.rays(i)[1].numpy() for i in range(len(train))]).astype(np.float32),
             np.stack([test.rays(i)[1].numpy() for i in range(len(test))]).astype(np.float32))
@@ -56,6 +59,7 @@ def gbuffers(field, train, test, side: int, args):
 def score(variant: str, side: int, data, args) -> dict:
     from neuras_distill.metrics import psnr
     from neuras_distill.neural.model import NeuralTextureModel
+    from neuras_distill.config import TrainConfig
     from neuras_distill.neural.train import fit
 
     (gb_train, gb_test, dirs_train, dirs_test), targets, test_images, bg = data
@@ -64,8 +68,8 @@ def score(variant: str, side: int, data, args) -> dict:
     warmup = float(variant.split("@", 1)[1]) if use_vq else 1.0
     model = NeuralTextureModel(side, side, feature_dim=8, num_codes=1024, hidden=16, num_layers=2, use_vq=use_vq)
     t0 = time.perf_counter()
-    fit(model, gb_train.uv, gb_train.coverage, dirs_train, targets, steps=args.steps, vq_warmup=warmup,
-        ssim_weight=args.ssim_weight, progress=False, num_threads=args.threads)
+    fit(model, gb_train.uv, gb_train.coverage, dirs_train, targets, steps=args.steps,
+        config=TrainConfig(vq_warmup=warmup, ssim_weight=args.ssim_weight), progress=False, num_threads=args.threads)
     seconds = time.perf_counter() - t0
     psnrs = [psnr(model.render_gbuffer(gb_test.uv[i], gb_test.coverage[i], dirs_test[i], bg), test_images[i])
              for i in range(len(test_images))]

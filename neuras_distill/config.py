@@ -23,6 +23,9 @@ CoreLevel = Literal["colour", "surface"]
 ShellSource = Literal["offset", "level"]
 #: Where a density field's mesh comes from (``GeometryConfig.surface``).
 SurfaceSource = Literal["auto", "depths"]
+#: Largest mesh the UV unwrap accepts (xatlas's time grows faster than linearly; larger face budgets are refused
+#: when the configuration is read, ``geometry/unwrap.py``).
+MAX_UNWRAP_FACES = 200_000
 
 
 def _require_choice(value, choices, name: str) -> None:
@@ -287,7 +290,6 @@ class DistillConfig:
         require(t.shell_hidden >= 0, f"texture.shell_hidden must be 0 (as hidden) or positive, got {t.shell_hidden}")
         require(g.face_budget >= 4, f"face budget must be at least 4 faces, got {g.face_budget}; "
                                     "pass e.g. --face-budget 40000")
-        from .geometry.unwrap import MAX_UNWRAP_FACES
         require(g.face_budget <= MAX_UNWRAP_FACES,
                 f"face budget {g.face_budget} is more than the UV unwrap handles ({MAX_UNWRAP_FACES} faces); "
                 f"pass --face-budget {MAX_UNWRAP_FACES} or less")

@@ -52,22 +52,27 @@ def parse_box(text: str):
     return [v[:3], v[3:]]
 
 
-def _checkpoint_inputs(args, path: str, adapter: str, options: dict) -> tuple:
-    from pathlib import Path
+def cameras_option(cam_path: str | None):
+    """The ``Cameras`` of a ``--cameras`` transforms.json; None without the option, or for another kind of file
+    (a NeuS cameras_sphere.npz, which its adapter reads). A missing file is refused."""
+    from .errors import require
+    from .render.cameras import Cameras
 
+    if cam_path is None:
+        return None
+    cam_file = Path(cam_path)
+    require(cam_file.is_file(), f"--cameras {cam_path}: no such file")
+    return Cameras.from_transforms(cam_file) if cam_file.suffix.lower() == ".json" else None
+
+
+def _checkpoint_inputs(args, path: str, adapter: str, options: dict) -> tuple:
     from .errors import require
     from .registry import load_field
-    from .render.cameras import Cameras
 
     cfg = _config_from_args(args)
     src = Path(path)
-    cameras = None
     cam_path = getattr(args, "cameras", None)
-    if cam_path is not None:
-        cam_file = Path(cam_path)
-        require(cam_file.is_file(), f"--cameras {cam_path}: no such file")
-        if cam_file.suffix.lower() == ".json":
-            cameras = Cameras.from_transforms(cam_file)
+    cameras = cameras_option(cam_path)
     field = load_field(src, adapter=adapter, **options)
     if cameras is None and getattr(field, "cameras", None) is None and cam_path is None:
         require(callable(getattr(field, "default_cameras", None)),

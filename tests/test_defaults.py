@@ -5,7 +5,11 @@ import inspect
 
 import pytest
 
-from neuras_distill.config import SkyboxConfig, TeacherConfig, TextureConfig, TrainConfig
+from neuras_distill.config import GeometryConfig, SkyboxConfig, TeacherConfig, TextureConfig, TrainConfig
+from neuras_distill.geometry.extract import extract_surface, unwrap_surface
+from neuras_distill.geometry.unwrap import unwrap
+from neuras_distill.geometry.visibility import cull_unseen_faces
+from neuras_distill.render.occupancy import OccupancyGrid
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.shader import MLPShader
 from neuras_distill.neural.skybox import SkyboxModel
@@ -19,10 +23,12 @@ CASES = [
     (MLPShader.__init__, TextureConfig(), {"hidden": "hidden", "num_layers": "num_layers"}),
     (SkyboxModel.__init__, SkyboxConfig(), {"feature_dim": "feature_dim", "num_codes": "num_codes",
                                             "hidden": "hidden"}),
-    (fit, TrainConfig(), {"lr": "lr", "texture_lr_scale": "texture_lr_scale", "batch_patches": "batch_patches",
-                          "patch": "patch", "ssim_weight": "ssim_weight", "vq_warmup": "vq_warmup", "seed": "seed"}),
-    (VolumeRenderer.__init__, TeacherConfig(), {"num_steps": "num_steps",
+    (unwrap_surface, GeometryConfig(), {"unwrap_timeout_s": "unwrap_timeout_s"}),
+    (unwrap, GeometryConfig(), {"timeout_s": "unwrap_timeout_s"}),
+    (VolumeRenderer.__init__, TeacherConfig(), {"num_steps": "num_steps", "far_steps": "far_steps",
                                                 "occupancy_resolution": "occupancy_resolution"}),
+    (OccupancyGrid.from_field, TeacherConfig(), {"resolution": "occupancy_resolution"}),
+    (cull_unseen_faces, GeometryConfig(), {"margin_deg": "cull_margin_deg"}),
 ]
 
 
@@ -31,3 +37,14 @@ def test_library_defaults_are_the_configuration_defaults(function, config, names
     params = inspect.signature(function).parameters
     for arg, key in names.items():
         assert params[arg].default == getattr(config, key), (function.__qualname__, arg)
+
+
+# steps and time_budget_s reach fit from the run's training plan, which starts from the section's values
+@pytest.mark.parametrize("function, section, planned", [(fit, TrainConfig(), {"steps", "time_budget_s"}),
+                                                        (extract_surface, GeometryConfig(), set())],
+                         ids=["fit", "extract_surface"])
+def test_a_function_that_takes_a_section_whole_defaults_to_the_configuration(function, section, planned):
+    params = inspect.signature(function).parameters
+    assert params["config"].default == section
+    own = set(section.__dataclass_fields__) & set(params) - planned
+    assert not own, f"{function.__qualname__} reads {sorted(own)} from its section, not from its own arguments"

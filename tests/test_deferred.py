@@ -17,7 +17,7 @@ from neuras_distill.bake.bundle import load_bundle
 from neuras_distill.playback import deferred
 from neuras_distill.playback.deferred import compute_shading_source, compute_supported
 from neuras_distill.playback.renderer import BundleRenderer
-from neuras_distill.playback.silhouette import SILHOUETTE_FRAGMENT_SHADER
+from neuras_distill.playback.shaders import SILHOUETTE_FRAGMENT_SHADER
 from neuras_distill.playback.view_modes import mode_bundle
 from neuras_distill.render.cameras import Cameras
 from test_web import ORIGIN, _run_folder

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from neuras_distill.config import GeometryConfig
 from neuras_distill.geometry.depth_fusion import fused_depth_sdf
 from neuras_distill.geometry.grid import grid_spec
 from neuras_distill.geometry.marching import marching_cubes_field, marching_cubes_grid, mesh_handles
@@ -104,8 +105,9 @@ def _extract(field, monkeypatch, fail_first_unwrap: bool):
         return real(mesh, **kw)
 
     monkeypatch.setattr(extract, "unwrap", unwrap)
-    mesh = extract.extract_mesh(field, cams, grid_resolution=48, face_budget=2000, texture_resolution=128,
-                                field_depth=(depth, depth, opacity), unwrap_timeout_s=60)
+    config = GeometryConfig(grid_resolution=48, face_budget=2000, unwrap_timeout_s=60)
+    surface = extract.extract_surface(field, cams, config, trial_resolution=128, field_depth=(depth, depth, opacity))
+    mesh = extract.unwrap_surface(surface, 128, unwrap_timeout_s=60)
     return mesh, calls
 
 

@@ -11,6 +11,7 @@ import sys
 import pytest
 import torch
 
+from neuras_distill.config import TextureConfig, TrainConfig
 from neuras_distill.device import OUT_OF_MEMORY, chunk_for_memory, field_device, move_field, resolve_device
 from neuras_distill.device_field import DeviceField, on_device
 from neuras_distill.errors import BadInputError
@@ -138,5 +139,6 @@ def test_training_plan_floor_and_probe_follow_the_training_device():
     assert decisions.training_time_budget(1.0, 10**6, 10**6) == decisions.TRAIN_FLOOR_S
     assert decisions.training_time_budget(1.0, 10**6, 10**6, floor_s=decisions.GPU_TRAIN_FLOOR_S) == 60.0
     assert decisions.training_time_budget(100.0, 10**6, 10**6) == pytest.approx(decisions.TRAIN_TIME_FRACTION * 200.0)
-    speed = decisions.probe_training_speed(4, 8, 2, 4, 8, steps=5, side=32, device="cpu")
+    speed = decisions.probe_training_speed(TextureConfig(feature_dim=4, hidden=8, num_layers=2),
+                                           TrainConfig(batch_patches=4, patch=8), steps=5, side=32, device="cpu")
     assert speed > 0

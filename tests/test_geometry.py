@@ -13,7 +13,8 @@ import torch
 
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.cleanup import clean_mesh, decimate, is_watertight
-from neuras_distill.geometry.extract import extract_mesh
+from neuras_distill.config import GeometryConfig
+from neuras_distill.geometry.extract import extract_surface, unwrap_surface
 from neuras_distill.geometry.grid import grid_spec, sample_grid
 from neuras_distill.geometry.lattice_mc import signed_volume
 from neuras_distill.geometry.marching import marching_cubes_field
@@ -490,15 +491,17 @@ def test_unwrap_child_crash_is_contained(monkeypatch, fault, what):
 
 
 # ---------------------------------------------------------------------------------------------- whole stage
-def test_extract_mesh_end_to_end():
+def test_extract_surface_and_unwrap_end_to_end():
     cams = Cameras.orbit([0, 0, 0], 3.0, 6, width=96, height=96, elevation_deg=20.0)
-    mesh = extract_mesh(SphereSDF(), cams, grid_resolution=48, face_budget=1500, texture_resolution=256)
+    surface = extract_surface(SphereSDF(), cams, GeometryConfig(grid_resolution=48, face_budget=1500),
+                              trial_resolution=256)
+    mesh = unwrap_surface(surface, 256)
     s = mesh.stats
     assert s["faces_marching_cubes"] >= s["faces_after_clean"] >= s["faces_after_decimation"] >= s["faces_final"]
     assert s["faces_after_decimation"] <= 1500 and s["faces_final"] == mesh.num_faces
     assert s["faces_final"] + s["culled_faces"] == s["faces_after_decimation"] and s["culled_faces"] > 0
     assert s["chart_count"] >= 1 and mesh.uvs is not None
-    for step in ("marching_cubes", "clean", "decimate", "cull", "unwrap", "total"):
+    for step in ("marching_cubes", "clean", "decimate", "cull", "unwrap", "surface"):
         assert s[f"seconds_{step}"] >= 0
 
 

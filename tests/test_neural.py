@@ -6,13 +6,14 @@ import numpy as np
 import pytest
 import torch
 
+from neuras_distill.config import TrainConfig
+from neuras_distill.errors import BadInputError
 from neuras_distill.neural.losses import PerceptualLoss, ssim, vgg16_features
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.shader import MLPShader
 from neuras_distill.neural.texture import NeuralTexture, bilinear_corners
 from neuras_distill.neural.train import fit
 from neuras_distill.neural.vq import VectorQuantizer
-from neuras_distill.errors import BadInputError
 
 
 # ------------------------------------------------------------------------------------------ bilinear
@@ -255,8 +256,8 @@ def test_fit_reaches_psnr_on_smooth_target():
     data = synthetic_gbuffer()
     model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=256, use_vq=True)
     start = _psnr(model, *data)
-    log = fit(model, *data, steps=250, batch_patches=8, patch=16, progress=False, log_every=25, num_threads=1,
-              vq_warmup=0.15)
+    log = fit(model, *data, steps=250, config=TrainConfig(batch_patches=8, patch=16, vq_warmup=0.15),
+              progress=False, log_every=25, num_threads=1)
     end = _psnr(model, *data)
     assert start < 20 and end > 30, (start, end)
     assert log.steps == 250 and log.stopped_by == "steps"
@@ -277,7 +278,8 @@ def test_fit_quantizes_after_training_by_default():
         torch.manual_seed(0)
         data = synthetic_gbuffer()
         model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True, quantize_above=0)
-        log = fit(model, *data, steps=250, batch_patches=8, patch=16, progress=False, num_threads=1, **kwargs)
+        log = fit(model, *data, steps=250, config=TrainConfig(batch_patches=8, patch=16, **kwargs), progress=False,
+                  num_threads=1)
         return model, log, _psnr(model, *data)
 
     model, log, after = trained()
@@ -292,7 +294,7 @@ def test_fit_keeps_the_texels_exact_when_they_fit_the_index():
     baked codebook is the texels' own features (the index and codebook give back every texel exactly)."""
     data = synthetic_gbuffer()
     exact = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True)
-    log = fit(exact, *data, steps=60, batch_patches=8, patch=16, progress=False, num_threads=1)
+    log = fit(exact, *data, steps=60, config=TrainConfig(batch_patches=8, patch=16), progress=False, num_threads=1)
     touched = int(exact.touched.sum())
     assert 64 < touched <= 1024 and log.exact_codes and log.vq_start_step is None and not exact.quantizing
     index, codebook = exact.baked_features()
@@ -300,7 +302,7 @@ def test_fit_keeps_the_texels_exact_when_they_fit_the_index():
     np.testing.assert_array_equal(codebook[index.reshape(-1)], exact.texture.flat.detach().numpy())
 
     capped = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True, quantize_above=touched - 1)
-    log = fit(capped, *data, steps=60, batch_patches=8, patch=16, progress=False, num_threads=1)
+    log = fit(capped, *data, steps=60, config=TrainConfig(batch_patches=8, patch=16), progress=False, num_threads=1)
     assert capped.quantizing and not log.exact_codes and log.vq_start_step == 60
     assert capped.baked_features()[1].shape[0] <= 64
 
@@ -308,7 +310,8 @@ def test_fit_keeps_the_texels_exact_when_they_fit_the_index():
 def test_fit_time_budget_and_bad_input():
     data = synthetic_gbuffer(n=1, res=16)
     model = NeuralTextureModel(16, 16, feature_dim=4, num_codes=16, quantize_above=0)
-    log = fit(model, *data, steps=100000, time_budget_s=0.5, batch_patches=2, progress=False, num_threads=1)
+    log = fit(model, *data, steps=100000, time_budget_s=0.5, config=TrainConfig(batch_patches=2), progress=False,
+              num_threads=1)
     assert log.stopped_by == "time_budget" and log.steps < 100000 and model.quantizing
     uv, cov, dirs, tgt = data
     with pytest.raises(BadInputError):

@@ -116,13 +116,14 @@ def _trained_together(nproc: int, **kwargs):
     from test_neural import synthetic_gbuffer
 
     from neuras_distill.neural.model import NeuralTextureModel
+    from neuras_distill.config import TrainConfig
     from neuras_distill.neural.train import fit
 
     data = synthetic_gbuffer(n=3, res=24)
     torch.manual_seed(0)
     model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=32, hidden=16, use_vq=True)
     start = {k: v.clone() for k, v in model.state_dict().items()}
-    args = dict(steps=30, batch_patches=6, patch=8, progress=False, **kwargs)
+    args = dict(steps=30, config=TrainConfig(batch_patches=6, patch=8, **kwargs), progress=False)
     if nproc == 1:
         log = fit(model, *data, num_threads=1, **args)
     else:

@@ -8,15 +8,15 @@ import json
 import numpy as np
 import pytest
 import torch
+from test_neural import synthetic_gbuffer
 
+from neuras_distill.config import TrainConfig
 from neuras_distill.errors import BadInputError
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.train import fit
 from neuras_distill.neural.train_checkpoint import TrainCheckpoint
-from neuras_distill.pipeline.cache import StageCache, digest, field_fingerprint, save_arrays, load_arrays
+from neuras_distill.pipeline.cache import StageCache, digest, field_fingerprint, load_arrays, save_arrays
 from neuras_distill.pipeline.rundir import MARKER, RunFolder
-
-from test_neural import synthetic_gbuffer
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -38,6 +38,9 @@ class _KillAfterSaving(TrainCheckpoint):
             raise _Killed(state["step"])
 
 
+SMALL = TrainConfig(batch_patches=2, patch=8)
+
+
 def _model():
     torch.manual_seed(0)
     return NeuralTextureModel(16, 16, feature_dim=4, num_codes=16, hidden=8, num_layers=2)
@@ -45,7 +48,7 @@ def _model():
 
 def test_training_resumed_from_a_checkpoint_ends_bit_identical(tmp_path):
     data = synthetic_gbuffer(n=2, res=16)
-    kwargs = dict(steps=60, batch_patches=2, patch=8, progress=False, num_threads=1, seed=3)
+    kwargs = dict(steps=60, config=TrainConfig(batch_patches=2, patch=8, seed=3), progress=False, num_threads=1)
     whole = _model()
     log_whole = fit(whole, *data, **kwargs)
 
@@ -67,13 +70,13 @@ def test_a_checkpoint_of_other_settings_or_a_corrupt_one_is_not_resumed(tmp_path
     data = synthetic_gbuffer(n=1, res=16)
     path = tmp_path / "ckpt.pt"
     with pytest.raises(_Killed):
-        fit(_model(), *data, steps=20, batch_patches=2, patch=8, progress=False, checkpoint=_KillAfterSaving(path, "a", 5))
+        fit(_model(), *data, steps=20, config=SMALL, progress=False, checkpoint=_KillAfterSaving(path, "a", 5))
     lines = []
-    log = fit(_model(), *data, steps=20, batch_patches=2, patch=8, progress=False,
+    log = fit(_model(), *data, steps=20, config=SMALL, progress=False,
               checkpoint=TrainCheckpoint(path, "b", every_s=1e9, log=lines.append))
     assert log.resumed_from_step is None and "other inputs or settings" in lines[0]
     path.write_bytes(b"PK\x03\x04 not a checkpoint")
-    log = fit(_model(), *data, steps=20, batch_patches=2, patch=8, progress=False,
+    log = fit(_model(), *data, steps=20, config=SMALL, progress=False,
               checkpoint=TrainCheckpoint(path, "b", every_s=1e9, log=lines.append))
     assert log.resumed_from_step is None and "unreadable" in lines[1] and not path.exists()
 

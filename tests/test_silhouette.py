@@ -5,7 +5,8 @@ import pytest
 
 from neuras_distill.bake.bundle import bake
 from neuras_distill.geometry.mesh import MeshData
-from neuras_distill.playback.silhouette import (SHELL_COVERAGE, SILHOUETTE_FRAGMENT_SHADER, blend_silhouettes,
+from neuras_distill.playback.shaders import SILHOUETTE_FRAGMENT_SHADER
+from neuras_distill.playback.silhouette import (SHELL_COVERAGE, blend_silhouettes,
                                                 layer_coverage, silhouette_edges)
 from test_two_layer import _sphere, cameras, gl
 

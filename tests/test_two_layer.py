@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from neuras_distill.bake.bundle import bake, load_bundle
+from neuras_distill.config import TrainConfig
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
 from neuras_distill.neural.model import NeuralTextureModel
@@ -389,7 +390,8 @@ def test_a_shader_per_layer_picks_by_the_layer_column():
     layer[:, :, w // 2:] = 1.0
     view = np.concatenate([np.tile(np.float32([0, 0, -1, 1]), (1, h, w, 1)), layer], axis=-1)
     fit(m, gen.random((1, h, w, 2), dtype=np.float32), np.ones((1, h, w), bool), view,
-        gen.random((1, h, w, 3), dtype=np.float32), steps=3, batch_patches=2, patch=4, progress=False)
+        gen.random((1, h, w, 3), dtype=np.float32), steps=3, config=TrainConfig(batch_patches=2, patch=4),
+        progress=False)
     assert any((p - q).abs().max() > 0 for p, q in zip(m.shaders[1].parameters(), before))
 
 

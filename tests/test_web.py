@@ -41,7 +41,7 @@ from neuras_distill.cli import main
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
 from neuras_distill.playback.shaders import VERTEX_SHADER, shader_variant
-from neuras_distill.playback.silhouette import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER
+from neuras_distill.playback.shaders import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER
 from neuras_distill.render.cameras import Cameras
 from test_bake import make_model, quad_mesh
 

@@ -91,8 +91,7 @@ def web_files(bundle, cameras_json: bytes, max_texture_size: int = DEFAULT_MAX_T
     from ..bake.glsl_sky import SKY_VERTEX_SHADER
     from ..playback.projection import mesh_bounds
     from ..playback.rasterize import mesh_layers
-    from ..playback.shaders import VERTEX_SHADER, shader_variant
-    from ..playback.silhouette import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER
+    from ..playback.shaders import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER, VERTEX_SHADER, shader_variant
 
     limit = checked_limit(max_texture_size)
     fitted, fragment_shader, sky_fragment_shader = fit_bundle_textures(bundle, limit)

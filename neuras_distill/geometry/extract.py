@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config import GeometryConfig
 from ..errors import BadInputError
 from ..render.volume import FRINGE_OPACITY
 from .cleanup import clean_mesh, decimate_in_blocks, smooth_rough
@@ -22,6 +23,9 @@ from .marching import folded_fraction, marching_cubes_field
 from .mesh import MeshData
 from .unwrap import MAX_UNWRAP_FACES, UnwrapFailed, unwrap
 from .visibility import cull_unseen_faces, missed_opaque_fraction
+
+#: The library's defaults are the configuration's (one place: ``config.py``).
+_GEOMETRY = GeometryConfig()
 
 if TYPE_CHECKING:
     from ..fields.base import Field
@@ -103,70 +107,44 @@ def _json_value(o):
     return o.item() if isinstance(o, np.generic) else str(o)
 
 
-def extract_mesh(field: Field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
-                 texture_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
-                 density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
-                 choose_resolution=None, cull_margin_deg: float = 15.0, field_opacity=None,
-                 field_depth=None, core_level: str = "surface") -> MeshData:
-    """Extract, simplify, cull and unwrap the surface of ``field``: :func:`extract_surface`, then
-    :func:`unwrap_surface` at ``choose_resolution(surface.trial)`` when given, else at ``texture_resolution``.
+def extract_surface(field: Field, train_cameras, config: GeometryConfig = _GEOMETRY, *, trial_resolution: int = 1024,
+                    density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
+                    field_opacity=None, field_depth=None) -> Surface:
+    """Sample, mesh, clean, decimate and cull the surface of ``field``, and unwrap it once at
+    ``trial_resolution``; :func:`unwrap_surface` then unwraps it at the atlas side the run chooses.
 
     Args:
         field: Field (kind, aabb, geometry).
-        train_cameras: ``Cameras`` used for visibility culling (ignored when ``cull_unseen`` is False).
-        grid_resolution: marching-cubes lattice points along the longest box side.
-        face_budget: maximum faces after decimation (int >= 4).
-        texture_resolution: side of the square atlas the distiller uses (uv layout and padding target it).
-        unwrap_timeout_s: time limit per xatlas attempt.
+        train_cameras: ``Cameras`` used for visibility culling (ignored when ``config.cull_unseen`` is False).
+        config: the geometry section: ``grid_resolution`` (marching-cubes lattice points along the longest box
+            side), ``face_budget`` (faces after decimation), ``unwrap_timeout_s`` (per xatlas attempt),
+            ``cull_unseen`` and ``cull_margin_deg`` (culling keeps what cameras turned by this angle around the
+            training cameras' look-at points see: ``visibility.cull_unseen_faces``), ``core_level``, ``shell``
+            and ``surface`` ("depths": mesh the fused depths straight away, for parts thinner than a voxel).
+        trial_resolution: side of the square atlas of the trial unwrap.
         density_level: iso-level override for density fields.
-        cull_margin_deg: culling keeps what cameras turned by this angle around the training cameras' look-at
-            points see (``visibility.cull_unseen_faces``).
         field_opacity: optional (N, H, W) opacity of the field in ``train_cameras``: the iso-level then moves
             outwards until the mesh encloses the field's soft fringe (``marching.marching_cubes_field``).
         field_depth: optional ((N, H, W) surface depths, (N, H, W) fringe depths, (N, H, W) opacities) of the
             field in ``train_cameras`` (``render.volume``): a density field whose level set is foam (a trained
-            NeRF's unsupervised interior) whose level set xatlas cannot unwrap (tunnels and pockets:
-            ``unwrap.UnwrapFailed``) is then meshed again from the fused surface depths
-            (``depth_fusion.fused_depth_sdf``), its fringe shell from the fused fringe depths;
-            ``stats['level_set_unwrap_failure']`` says why.
-        core_level: "surface", or "colour": with ``field_opacity`` and ``field_depth``, a fringed density
-            field's core sits where its training rays terminate (``colour_level``), not at the surface level.
-        choose_resolution: optional callable (unwrapped MeshData) -> atlas side; the mesh is first unwrapped
-            at ``texture_resolution``, then again at the chosen side when it differs (the padding is laid out
-            in texels of the final atlas). ``stats['uv_resolution']`` holds the side used.
+            NeRF's unsupervised interior) that xatlas cannot unwrap (tunnels and pockets: ``unwrap.UnwrapFailed``)
+            is then meshed again from the fused surface depths (``depth_fusion.fused_depth_sdf``), its fringe
+            shell from the fused fringe depths; ``stats['level_set_unwrap_failure']`` says why. With
+            ``field_opacity`` too and ``config.core_level`` "colour", a fringed density field's core sits where
+            its training rays terminate (``colour_level``), not at the surface level.
 
     Returns:
-        MeshData with uvs (two layers, ``core_faces`` set, when ``field_opacity`` made marching cubes add a
-        fringe shell: each layer is cleaned, decimated and culled on its own, the shell to
-        :func:`shell_budget` faces and a quarter of the core's texel density) and ``stats``:
-        ``faces_marching_cubes``, ``faces_after_clean``,
-        ``faces_after_decimation``, ``culled_faces``, ``faces_final``, ``vertices_final``, ``uv_charts``,
-        ``seconds_{marching_cubes,clean,decimate,cull,unwrap,total}`` plus each step's own keys.
+        :class:`Surface`: its mesh has two layers (``core_faces`` set) when ``field_opacity`` made marching cubes
+        add a fringe shell (each layer cleaned, decimated and culled on its own, the shell to :func:`shell_budget`
+        faces), and ``stats``: ``faces_marching_cubes``, ``faces_after_clean``, ``faces_after_decimation``,
+        ``culled_faces``, ``seconds_{marching_cubes,clean,decimate,cull,surface}`` plus each step's own keys.
 
     Raises:
         BadInputError: no surface in the box, bad budget, cameras seeing nothing, unwrap failure.
     """
-    t_start = time.perf_counter()
-    surface = extract_surface(field, train_cameras, grid_resolution=grid_resolution, face_budget=face_budget,
-                              trial_resolution=texture_resolution, unwrap_timeout_s=unwrap_timeout_s,
-                              cull_unseen=cull_unseen, density_level=density_level,
-                              max_unwrap_faces=max_unwrap_faces, cull_margin_deg=cull_margin_deg,
-                              field_opacity=field_opacity, field_depth=field_depth, core_level=core_level)
-    side = int(choose_resolution(surface.trial)) if choose_resolution is not None else int(texture_resolution)
-    mesh = unwrap_surface(surface, side, unwrap_timeout_s=unwrap_timeout_s, max_unwrap_faces=max_unwrap_faces)
-    mesh.stats["seconds_total"] = time.perf_counter() - t_start
-    return mesh
-
-
-def extract_surface(field: Field, train_cameras, *, grid_resolution: int = 192, face_budget: int = 40_000,
-                    trial_resolution: int = 1024, unwrap_timeout_s: float = 120.0, cull_unseen: bool = True,
-                    density_level: float | None = None, max_unwrap_faces: int = MAX_UNWRAP_FACES,
-                    cull_margin_deg: float = 15.0, field_opacity=None, field_depth=None,
-                    core_level: str = "surface", from_depths: bool = False, shell: str = "offset") -> Surface:
-    """Sample, mesh, clean, decimate and cull the surface of ``field``, and unwrap it once at
-    ``trial_resolution`` (arguments as :func:`extract_mesh`). A density field's level set that xatlas cannot
-    unwrap is meshed again from the fused depths (``field_depth``); ``from_depths`` meshes the fused depths
-    straight away (parts thinner than a voxel: ``config.GeometryConfig.surface``)."""
+    grid_resolution, face_budget, core_level = config.grid_resolution, config.face_budget, config.core_level
+    unwrap_timeout_s, cull_unseen, cull_margin_deg = config.unwrap_timeout_s, config.cull_unseen, config.cull_margin_deg
+    from_depths, shell = config.surface == "depths", config.shell
     t_start = time.perf_counter()
     fringe_check = None
     if field_opacity is not None:
@@ -254,7 +232,7 @@ def _level_set_or_fused_depths(surface: Surface, simplified, fusion, cameras, op
     return keep
 
 
-def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float = 120.0,
+def unwrap_surface(surface: Surface, resolution: int, *, unwrap_timeout_s: float = _GEOMETRY.unwrap_timeout_s,
                    max_unwrap_faces: int = MAX_UNWRAP_FACES, face_weights: np.ndarray | None = None,
                    page_size: int | None = None) -> MeshData:
     """``surface.mesh`` unwrapped for a ``resolution`` x ``resolution`` atlas (``surface.trial`` when that is
@@ -368,4 +346,4 @@ def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int,
     return mesh, layout
 
 
-__all__ = ["Surface", "extract_mesh", "extract_surface", "unwrap_surface"]
+__all__ = ["Surface", "extract_surface", "unwrap_surface"]

@@ -31,6 +31,7 @@ from multiprocessing.connection import wait as mp_wait
 
 import numpy as np
 
+from ..config import MAX_UNWRAP_FACES, GeometryConfig
 from ..errors import BadInputError
 from .mesh import MeshData, unit_frame
 
@@ -228,13 +229,14 @@ def uv_face_areas(uvs: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
 
 
+#: The library's defaults are the configuration's (one place: ``config.py``).
+_GEOMETRY = GeometryConfig()
+
 #: With face weights, the mesh is cut into cubic tiles of 1/WEIGHTED_TILES of its extent before charting: xatlas
 #: makes one chart of a planar region whatever its size (its planar charts ignore ``max_chart_area``), and a
 #: road would then be one chart from the pixels at the camera's feet to the horizon, sized by one mean weight.
 WEIGHTED_TILES = 48
 
-#: Largest mesh the unwrap accepts (xatlas's time grows faster than linearly; larger budgets are refused up front).
-MAX_UNWRAP_FACES = 200_000
 
 
 def normalized_layout(positions: np.ndarray) -> np.ndarray:
@@ -247,7 +249,8 @@ def normalized_layout(positions: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray((positions - centre) / size, dtype=np.float32)
 
 
-def unwrap(mesh: MeshData, *, timeout_s: float = 120.0, max_faces: int = MAX_UNWRAP_FACES, resolution: int | None = None,
+def unwrap(mesh: MeshData, *, timeout_s: float = _GEOMETRY.unwrap_timeout_s, max_faces: int = MAX_UNWRAP_FACES,
+           resolution: int | None = None,
            padding: int = 3, min_padding: float = 2.0, max_iterations: int = 1,
            layout_vertices: np.ndarray | None = None, face_weights: np.ndarray | None = None,
            charts: np.ndarray | None = None, page_size: int | None = None) -> MeshData:

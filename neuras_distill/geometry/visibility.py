@@ -26,10 +26,14 @@ import time
 import numpy as np
 import torch
 
+from ..config import GeometryConfig
 from ..errors import BadInputError
 from ..render.extra_views import turned_about_look_at
 from .mesh import MeshData
 from .raycast import cast_rays, raycasting_scene
+
+#: The library's defaults are the configuration's (one place: ``config.py``).
+_GEOMETRY = GeometryConfig()
 
 
 def seen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, scene=None,
@@ -131,7 +135,7 @@ def neighbour_cameras(cameras, distances: np.ndarray, margin_deg: float):
 
 
 def cull_unseen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 65536, dilate: bool = True,
-                      margin_deg: float = 15.0) -> MeshData:
+                      margin_deg: float = _GEOMETRY.cull_margin_deg) -> MeshData:
     """Remove faces no camera near the training cameras sees.
 
     Args:

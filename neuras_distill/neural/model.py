@@ -86,6 +86,18 @@ class NeuralTextureModel(nn.Module):
             (``texture.bilinear_corners``), as the baked shader's texture-array lookup does.
     """
 
+    @classmethod
+    def for_atlas(cls, config: TextureConfig, tex_height: int, tex_width: int, *, pages: int = 1,
+                  mesh_layers: int = 1, use_viewdir: bool = True, use_facing: bool = False,
+                  core_viewdir: bool | None = None) -> NeuralTextureModel:
+        """The model the texture section ``config`` describes (feature_dim, num_codes, hidden, num_layers,
+        shell_hidden, quantize, quantize_above) for a ``tex_height`` x ``tex_width`` atlas of ``pages`` pages, with
+        the mesh's layers and the shader inputs the pipeline chose (arguments as for the constructor)."""
+        return cls(tex_height, tex_width, feature_dim=config.feature_dim, num_codes=config.num_codes,
+                   hidden=config.hidden, num_layers=config.num_layers, use_viewdir=use_viewdir,
+                   use_vq=config.quantize, use_facing=use_facing, mesh_layers=mesh_layers, core_viewdir=core_viewdir,
+                   shell_hidden=config.shell_hidden, pages=pages, quantize_above=config.quantize_above)
+
     def __init__(self, tex_height: int, tex_width: int, feature_dim: int = _TEXTURE.feature_dim,
                  num_codes: int = _TEXTURE.num_codes, hidden: int = _TEXTURE.hidden,
                  num_layers: int = _TEXTURE.num_layers, use_viewdir: bool = True, use_vq: bool = _TEXTURE.quantize,

@@ -1,6 +1,8 @@
 """Fitting a :class:`NeuralTextureModel` to teacher images through rasterized G-buffers.
 
-Owns: :func:`fit` and :class:`TrainLog`.
+Owns: :func:`fit` (the loop) and :class:`TrainLog`. The loop calls its parts: ``train_batches`` (the pixels and
+the patches drawn from them), ``train_step`` (a batch's loss, the skybox's share of it, the optimisers) and, with
+several processes, ``data_parallel.GradientExchange``.
 
 Decisions:
 - Batches are random square patches (``patch`` x ``patch``) centred on random covered pixels of random views
@@ -37,17 +39,18 @@ from __future__ import annotations
 import math
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
 from tqdm import tqdm
 
 from neuras_distill.config import TrainConfig
 from neuras_distill.errors import BadInputError
 from neuras_distill.neural.data_parallel import GradientExchange
-from neuras_distill.neural.losses import ssim
 from neuras_distill.neural.model import NeuralTextureModel
+from neuras_distill.neural.train_batches import TrainingPixels
+from neuras_distill.neural.train_step import BatchLoss, Optimisers
 
 #: The library's defaults are the configuration's (one place: ``config.py``).
 _TRAIN = TrainConfig()
@@ -90,25 +93,10 @@ class TrainLog:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-def _as_tensor(x, dtype, name: str, shape_tail: tuple, lead: tuple | None = None) -> torch.Tensor:
-    t = torch.as_tensor(np.asarray(x) if not torch.is_tensor(x) else x)
-    if t.dim() != 3 + len(shape_tail) or tuple(t.shape[3:]) != shape_tail:
-        raise BadInputError(f"fit: {name} must have shape (N, H, W{''.join(', ' + str(s) for s in shape_tail)}), "
-                            f"got {tuple(t.shape)}")
-    if lead is not None and tuple(t.shape[:3]) != lead:
-        raise BadInputError(f"fit: {name} has shape {tuple(t.shape)}, expected leading (N, H, W) = {lead}")
-    return t.to(dtype)
-
-
-def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, lr: float = _TRAIN.lr,
-        texture_lr_scale: float = _TRAIN.texture_lr_scale,
-        batch_patches: int = _TRAIN.batch_patches, patch: int = _TRAIN.patch,
-        ssim_weight: float = _TRAIN.ssim_weight, vq_weight: float = 1.0, vq_warmup: float = _TRAIN.vq_warmup,
-        lr_final_ratio: float = 0.1,
-        time_budget_s: float | None = None, progress: bool = True, log_every: int | None = None,
-        seed: int = _TRAIN.seed, num_threads: int | None = None, skybox=None, origins=None,
-        sky_pixels=None, checkpoint=None, device: torch.device | str | None = None,
-        exchange: GradientExchange | None = None) -> TrainLog:
+def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, config: TrainConfig = _TRAIN,
+        time_budget_s: float | None = None, skybox=None, origins=None, sky_pixels=None, checkpoint=None,
+        device: torch.device | str | None = None, exchange: GradientExchange | None = None, progress: bool = True,
+        log_every: int | None = None, num_threads: int | None = None) -> TrainLog:
     """Train ``model`` on teacher images.
 
     Args:
@@ -117,14 +105,8 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
             when the shader uses it, the mesh layer with two layers: ``neural.model.view_inputs``);
             targets: (N, H, W, 3) float32 teacher colours.
         steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
-        lr: MLP and codebook learning rate; texture_lr_scale: the atlases (the mesh's and the skyboxes')
-            learn at this multiple of lr.
-        batch_patches, patch: patches per step and their side in pixels.
-        ssim_weight, vq_weight: loss weights; vq_warmup: fraction of the run before quantization starts
-            (1.0: quantize after training).
-        log_every: steps between log entries (default steps // 50).
-        num_threads: torch intra-op threads during the loop (restored after); None leaves torch's setting.
-            On a busy shared CPU, 1 thread avoids OpenMP oversubscription (measured 108 vs 1.8 steps/s).
+        config: the :class:`TrainConfig` section (lr, texture_lr_scale, batch_patches, patch, ssim_weight,
+            vq_warmup, seed; the rest is the pipeline's).
         skybox: optional :class:`SkyboxModel` trained jointly on the pixels the mesh does not cover.
         origins: (N, 3) float32 camera centres relative to ``skybox.layers.center`` (required with skybox).
         sky_pixels: optional (N, H, W) bool, the uncovered pixels the skybox learns from (default: all of them);
@@ -137,181 +119,151 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         exchange: this process's :class:`~neuras_distill.neural.data_parallel.GradientExchange` when ``fit`` runs
             on several ranks at once (every rank with the same model, arrays and seed): each computes its share
             of every batch and the gradients are summed; None: one process.
+        log_every: steps between log entries (default steps // 50); num_threads: torch intra-op threads during
+            the loop (None: torch's setting; on a busy CPU 1 avoids OpenMP oversubscription: 108 vs 1.8 steps/s).
     Returns:
         :class:`TrainLog`. The model (and skybox) is left on the host in eval mode with untouched texels filled
         (on rank 0; the other ranks of an ``exchange`` return right after the loop, their model unquantized).
     """
     if steps < 1:
         raise BadInputError(f"fit: steps must be >= 1, got {steps}")
-    cov = _as_tensor(coverage, torch.bool, "coverage", ())
-    lead = tuple(cov.shape)
-    uv_t = _as_tensor(uv, torch.float32, "uv", (2,), lead)
-    dirs_t = _as_tensor(dirs, torch.float32, "dirs", (model.view_columns,), lead)
-    tgt_t = _as_tensor(targets, torch.float32, "targets", (3,), lead)
-    n, h, w = lead
-    cov_f = cov.reshape(-1)
-    covered = torch.nonzero(cov_f).flatten()
-    if covered.numel() == 0:
-        raise BadInputError("fit: no pixel is covered by the mesh in any training view")
-    if skybox is not None:
-        if origins is None:
-            raise BadInputError("fit: a skybox needs the camera centres (origins) of the training views")
-        origins_t = torch.as_tensor(np.asarray(origins, dtype=np.float32)).reshape(-1, 3)
-        if origins_t.shape[0] != lead[0]:
-            raise BadInputError(f"fit: origins has {origins_t.shape[0]} rows for {lead[0]} views")
-        covered = torch.arange(cov_f.numel())            # patches anywhere: the sky is trained too
-    sky_f = None
-    if skybox is not None:                               # uncovered pixels the sky learns from (default: all)
-        sky_f = (torch.ones(cov_f.numel(), dtype=torch.bool) if sky_pixels is None
-                 else _as_tensor(sky_pixels, torch.bool, "sky_pixels", (), lead).reshape(-1))
-    uv_f, dirs_f, tgt_f = uv_t.reshape(-1, 2), dirs_t.reshape(-1, dirs_t.shape[-1]), tgt_t.reshape(-1, 3)
-
-    p = int(max(1, min(patch, h, w)))
+    pixels = TrainingPixels.of(uv, coverage, dirs, targets, model.view_columns, skybox is not None, origins,
+                               sky_pixels)
     device = torch.device(device) if device is not None else model.texture.data.device
-    model.to(device)
-    if skybox is not None:
-        skybox.to(device)
-        origins_t = origins_t.to(device)
-    gen = torch.Generator().manual_seed(seed)
-    dy, dx = torch.meshgrid(torch.arange(p), torch.arange(p), indexing="ij")
-    use_ssim = ssim_weight > 0 and p >= 7
+    models = _place(model, skybox, pixels, device)
+    batch_loss, opts = BatchLoss(model, skybox, pixels, config, device, exchange), Optimisers(model, skybox, config)
+    gen = torch.Generator().manual_seed(config.seed)
     log_every = max(1, steps // 50) if log_every is None else max(1, int(log_every))
-    texture_lr = texture_lr_scale * lr
-
-    tex_params = [model.texture.data]
-    dense_groups = [{"params": list(model.shaders.parameters()), "lr": lr}]
-    if model.vq is not None:
-        dense_groups.append({"params": [model.vq.codebook], "lr": lr})
-    models = [model]
-    if skybox is not None:
-        tex_params.append(skybox.atlas.texture.data)
-        dense_groups.append({"params": skybox.dense_parameters(), "lr": lr})
-        models.append(skybox.atlas)
-    if model.sparse_grad:
-        opt_tex = torch.optim.SparseAdam(tex_params, lr=texture_lr)
-    else:
-        opt_tex = torch.optim.Adam(tex_params, lr=texture_lr)
-    opt = torch.optim.Adam(dense_groups)
-    base_lrs = [[g["lr"] for g in o.param_groups] for o in (opt_tex, opt)]
-
-    log = TrainLog()
-    old_threads = torch.get_num_threads()
-    if num_threads is not None:
-        torch.set_num_threads(int(num_threads))
-    model.train()
-    if skybox is not None:
-        skybox.train()
-    for m_ in models:
-        m_.record_touched = True
-    bar = tqdm(total=steps, file=sys.stderr, disable=not progress, desc="distill", leave=False)
-    t0 = time.perf_counter()
-    step = 0
+    log, clock = TrainLog(), _Clock(exchange)
     stored = checkpoint.load() if checkpoint is not None else None
-    if stored is not None:
-        step = _restore(stored, model, skybox, models, opt_tex, opt, gen, log)
-        t0 -= float(stored["elapsed"])
-        bar.update(step)
-    shared_clock = float(stored["elapsed"]) if stored is not None else 0.0   # rank 0's, one step late
-    sparse_params = tex_params if model.sparse_grad else []
-    dense_params = [q for g in dense_groups for q in g["params"]] + ([] if model.sparse_grad else tex_params)
-    try:
-        while step < steps:
-            elapsed = time.perf_counter() - t0 if exchange is None else shared_clock
-            frac = step / steps
-            if time_budget_s is not None:
-                if elapsed >= time_budget_s:
+    step = 0 if stored is None else _restore(stored, model, skybox, models, opts, gen, log, clock)
+    with _threads(num_threads), tqdm(total=steps, initial=step, file=sys.stderr, disable=not progress,
+                                     desc="distill", leave=False) as bar:
+        try:
+            while step < steps:
+                frac = _progress(step, steps, clock.elapsed(), time_budget_s)
+                if frac is None:
                     log.stopped_by = "time_budget"
                     break
-                frac = max(frac, elapsed / time_budget_s)
-            if model.use_vq and not model.quantizing and vq_warmup < 1.0 and frac >= vq_warmup:
-                for m_ in models:
-                    _start_vq(m_, exchange)
-                log.vq_start_step = step
-            decay = lr_final_ratio ** min(frac, 1.0)
-            for o, bases in zip((opt_tex, opt), base_lrs):
-                for g, b in zip(o.param_groups, bases):
-                    g["lr"] = b * decay
-
-            # ---- batch of patches centred on covered pixels
-            c = covered[torch.randint(0, covered.numel(), (batch_patches,), generator=gen)]
-            view = torch.div(c, h * w, rounding_mode="floor")
-            rem = c - view * (h * w)
-            cy = torch.div(rem, w, rounding_mode="floor")
-            cx = rem - cy * w
-            top = (cy - p // 2).clamp(0, h - p)
-            left = (cx - p // 2).clamp(0, w - p)
-            pix = (view[:, None, None] * (h * w) + (top[:, None, None] + dy) * w + (left[:, None, None] + dx))
-            # counts of the whole batch (every rank's share): each rank's terms are normalised by them
-            whole = _BatchCounts.of(cov_f[pix.reshape(-1)], None if sky_f is None else sky_f[pix.reshape(-1)])
-            mine = exchange.share(batch_patches) if exchange is not None else torch.arange(batch_patches)
-            pix, view = pix[mine].reshape(-1), view[mine]
-            m, tgt = cov_f[pix].to(device), tgt_f[pix].to(device)
-            uv_b, dirs_b = uv_f[pix].to(device), dirs_f[pix].to(device)
-            sel = torch.nonzero(m).flatten()
-            rgb, aux = model(uv_b[sel], dirs_b[sel])
-            vq_loss = aux["vq_loss"] * (sel.numel() / max(whole.mesh, 1))
-            if skybox is not None:                    # mesh where covered, sky where allowed, the rest left out
-                learn = ~m & sky_f[pix].to(device)
-                sky = torch.nonzero(learn).flatten()
-                sky_rgb, sky_aux = skybox(origins_t[view.to(device)].repeat_interleave(p * p, dim=0)[sky],
-                                          dirs_b[sky, :3])
-                full = torch.zeros(pix.numel(), 3, dtype=rgb.dtype, device=device).index_put(
-                    (sel,), rgb).index_put((sky,), sky_rgb)
-                m = m | learn
-                sel = torch.nonzero(m).flatten()
-                rgb = full[sel]
-                vq_loss = vq_loss + sky_aux["vq_loss"] * (sky.numel() / max(whole.sky, 1))
-            l2 = torch.sum((rgb - tgt[sel]) ** 2) / (3 * max(whole.learned, 1))   # the batch's mean
-            loss = l2 + vq_weight * vq_loss
-            if use_ssim:
-                full = tgt.index_put((sel,), rgb)
-                a = full.view(len(mine), p, p, 3).permute(0, 3, 1, 2)
-                b = tgt.view(len(mine), p, p, 3).permute(0, 3, 1, 2)
-                loss = loss + ssim_weight * (len(mine) / batch_patches) * (
-                    1.0 - ssim(a, b, window=7, mask=m.view(len(mine), p, p)))
-
-            opt_tex.zero_grad(set_to_none=True)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if exchange is not None:                  # sum the ranks' gradients; rank 0's clock, the batch's loss
-                own_clock = time.perf_counter() - t0 if exchange.rank == 0 else 0.0
-                shared_clock, l2_sum, loss_sum = exchange.reduce(
-                    dense_params, sparse_params, [own_clock, float(l2.detach()), float(loss.detach())])
-                l2, loss = torch.tensor(l2_sum), torch.tensor(loss_sum)
-            opt_tex.step()
-            opt.step()
-            if exchange is not None and model.quantizing:   # dead codes restart from each rank's own samples
-                exchange.agree([m_.vq.codebook.data for m_ in models])
-            step += 1
-            bar.update(1)
-
-            if step % log_every == 0 or step == steps:
-                l2v = float(l2.detach())
-                entry = {"step": step, "seconds": time.perf_counter() - t0, "loss": float(loss.detach()),
-                         "psnr": -10.0 * math.log10(max(l2v, 1e-10)), "lr": base_lrs[1][0] * decay}
-                if model.quantizing:
-                    entry.update(perplexity=model.vq.perplexity, used_fraction=model.vq.used_fraction)
-                log.entries.append(entry)
-                bar.set_postfix(psnr=f"{entry['psnr']:.2f}", loss=f"{entry['loss']:.4f}")
-            if checkpoint is not None and step < steps and checkpoint.due():
-                checkpoint.save(_snapshot(step, time.perf_counter() - t0, model, skybox, models, opt_tex, opt,
-                                          gen, log))
-    finally:
-        bar.close()
-        torch.set_num_threads(old_threads)
-        log.seconds = time.perf_counter() - t0
-        for m_ in models:
-            m_.record_touched = False
-    log.steps = step
+                if model.use_vq and not model.quantizing and config.vq_warmup < 1.0 and frac >= config.vq_warmup:
+                    log.vq_start_step = _start_vq(models, exchange, step)
+                decay = opts.decay(frac)
+                l2, loss = batch_loss(gen)
+                opts.zero_grad()
+                loss.backward()
+                if exchange is not None:           # sum the ranks' gradients; rank 0's clock, the batch's loss
+                    l2, loss = clock.reduce(opts, l2, loss)
+                opts.step()
+                if exchange is not None and model.quantizing:   # dead codes restart from each rank's own samples
+                    exchange.agree([m_.vq.codebook.data for m_ in models])
+                step += 1
+                bar.update(1)
+                if step % log_every == 0 or step == steps:
+                    _log_step(log, bar, model, step, clock, l2, loss, opts.mlp_lr(decay))
+                if checkpoint is not None and step < steps and checkpoint.due():
+                    checkpoint.save(_snapshot(step, clock.since_start(), model, skybox, models, opts, gen, log))
+        finally:
+            log.seconds, log.steps = clock.since_start(), step
+            for m_ in models:
+                m_.record_touched = False
     if exchange is not None:
         for m_ in models:
             exchange.union(m_.touched)
         if exchange.rank != 0:
             return log
-    log.steps_per_second = (step - (log.resumed_from_step or 0)) / max(
-        log.seconds - (float(stored["elapsed"]) if stored is not None else 0.0), 1e-9)
+    _finish(log, model, skybox, models, clock, config, pixels, exchange, checkpoint)
+    return log
+
+
+@contextmanager
+def _threads(num_threads: int | None):
+    """torch's intra-op threads set to ``num_threads`` (None: left alone) inside, restored after."""
+    old = torch.get_num_threads()
+    if num_threads is not None:
+        torch.set_num_threads(int(num_threads))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def _place(model: NeuralTextureModel, skybox, pixels: TrainingPixels, device: torch.device) -> list:
+    """Move the model (and skybox, and the camera centres) to ``device`` in training mode, recording touched
+    texels; returns the modules with an atlas: [model] or [model, skybox.atlas]."""
+    model.to(device)
+    models = [model]
+    if skybox is not None:
+        skybox.to(device)
+        pixels.sky.origins = pixels.sky.origins.to(device)
+        models.append(skybox.atlas)
+    model.train()
+    if skybox is not None:
+        skybox.train()
+    for m_ in models:
+        m_.record_touched = True
+    return models
+
+
+class _Clock:
+    """The loop's wall clock: this process's, or rank 0's (carried one step late) for every rank of an exchange,
+    so decisions that hang on time agree."""
+
+    def __init__(self, exchange: GradientExchange | None) -> None:
+        self.exchange = exchange
+        self.t0 = time.perf_counter()
+        self.shared = 0.0
+        self.resumed = 0.0
+
+    def resume(self, elapsed: float) -> None:
+        """Go on from a checkpoint taken ``elapsed`` seconds into the run."""
+        self.t0 -= elapsed
+        self.shared = self.resumed = elapsed
+
+    def since_start(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def elapsed(self) -> float:
+        """Seconds into the run as every rank sees them."""
+        return self.since_start() if self.exchange is None else self.shared
+
+    def reduce(self, opts: Optimisers, l2: torch.Tensor, loss: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Sum the ranks' gradients and losses, and take rank 0's clock; returns the whole batch's (l2, loss)."""
+        own = self.since_start() if self.exchange.rank == 0 else 0.0
+        self.shared, l2_sum, loss_sum = self.exchange.reduce(opts.dense, opts.sparse,
+                                                             [own, float(l2.detach()), float(loss.detach())])
+        return torch.tensor(l2_sum), torch.tensor(loss_sum)
+
+
+def _progress(step: int, steps: int, elapsed: float, time_budget_s: float | None) -> float | None:
+    """The run's progress 0..1 (the larger of steps and budget spent), or None when the time budget is spent."""
+    frac = step / steps
+    if time_budget_s is not None:
+        if elapsed >= time_budget_s:
+            return None
+        frac = max(frac, elapsed / time_budget_s)
+    return frac
+
+
+def _log_step(log: TrainLog, bar, model: NeuralTextureModel, step: int, clock: _Clock, l2: torch.Tensor,
+              loss: torch.Tensor, lr: float) -> None:
+    """Append the step's entry to ``log.entries`` and show it on the progress bar."""
+    l2v = float(l2.detach())
+    entry = {"step": step, "seconds": clock.since_start(), "loss": float(loss.detach()),
+             "psnr": -10.0 * math.log10(max(l2v, 1e-10)), "lr": lr}
+    if model.quantizing:
+        entry.update(perplexity=model.vq.perplexity, used_fraction=model.vq.used_fraction)
+    log.entries.append(entry)
+    bar.set_postfix(psnr=f"{entry['psnr']:.2f}", loss=f"{entry['loss']:.4f}")
+
+
+def _finish(log: TrainLog, model: NeuralTextureModel, skybox, models: list, clock: _Clock, config: TrainConfig,
+            pixels: TrainingPixels, exchange: GradientExchange | None, checkpoint) -> None:
+    """After the loop, on rank 0: the log's speed figures; the model (and skybox) back on the host, quantized
+    when it was not yet, untouched texels filled, in eval mode."""
+    log.steps_per_second = (log.steps - (log.resumed_from_step or 0)) / max(log.seconds - clock.resumed, 1e-9)
     log.processes = exchange.world if exchange is not None else 1
-    log.pixels_per_second_per_process = log.steps_per_second * batch_patches * p * p / log.processes
+    p = pixels.patch_side(config.patch)
+    log.pixels_per_second_per_process = log.steps_per_second * config.batch_patches * p * p / log.processes
     if checkpoint is not None:
         log.checkpoints_written = checkpoint.saved
     model.cpu()                    # the trained model leaves on the host (quantization and texel fill run there)
@@ -320,7 +272,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
     if model.use_vq and not model.quantizing:      # quantize after training (or the warm-up outlasted the run)
         for m_ in models:
             m_.start_vq(after_training=True)
-        log.vq_start_step = step if model.quantizing else None
+        log.vq_start_step = log.steps if model.quantizing else None
     log.exact_codes = bool(model.vq_skipped)
     if model.quantizing:
         log.vq_stats = {**model.vq.stats(), **_texel_code_stats(model)}
@@ -331,57 +283,41 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, l
         log.sky_touched_fraction = float(skybox.atlas.touched.float().mean())
         skybox.atlas.fill_unseen_texels()
         skybox.eval()
-    return log
 
 
-def _snapshot(step: int, elapsed: float, model, skybox, models, opt_tex, opt, gen, log: TrainLog) -> dict:
+def _snapshot(step: int, elapsed: float, model, skybox, models, opts: Optimisers, gen, log: TrainLog) -> dict:
     """Everything the loop needs to go on from ``step`` (:class:`neural.train_checkpoint.TrainCheckpoint`)."""
     return {"step": step, "elapsed": elapsed, "model": model.state_dict(),
             "skybox": skybox.state_dict() if skybox is not None else None,
-            "touched": [m.touched.clone() for m in models],
-            "opt_tex": opt_tex.state_dict(), "opt": opt.state_dict(), "generator": gen.get_state(),
+            "touched": [m.touched.clone() for m in models], **opts.state_dict(), "generator": gen.get_state(),
             "entries": list(log.entries), "stopped_by": log.stopped_by}
 
 
-def _restore(state: dict, model, skybox, models, opt_tex, opt, gen, log: TrainLog) -> int:
-    """Load a :func:`_snapshot` into the loop's objects; returns its step."""
+def _restore(state: dict, model, skybox, models, opts: Optimisers, gen, log: TrainLog, clock: _Clock) -> int:
+    """Load a :func:`_snapshot` into the loop's objects and clock; returns its step."""
     model.load_state_dict(state["model"])
     if skybox is not None:
         skybox.load_state_dict(state["skybox"])
     for m, touched in zip(models, state["touched"]):
         m.touched.copy_(touched)
-    opt_tex.load_state_dict(state["opt_tex"])
-    opt.load_state_dict(state["opt"])
+    opts.load_state_dict(state)
     gen.set_state(state["generator"])
     log.entries = list(state["entries"])
     log.resumed_from_step = int(state["step"])
+    clock.resume(float(state["elapsed"]))
     return int(state["step"])
 
 
-@dataclass
-class _BatchCounts:
-    """Pixels of a whole batch: covered by the mesh, learnt by the skybox, and learnt at all."""
-    mesh: int
-    sky: int
-    learned: int
-
-    @staticmethod
-    def of(covered: torch.Tensor, sky_allowed: torch.Tensor | None) -> _BatchCounts:
-        """covered, sky_allowed: (P,) bool over the batch's pixels (sky_allowed None: no skybox)."""
-        mesh = int(covered.sum())
-        sky = 0 if sky_allowed is None else int((~covered & sky_allowed).sum())
-        return _BatchCounts(mesh, sky, mesh + sky)
-
-
-def _start_vq(m: torch.nn.Module, exchange: GradientExchange | None) -> None:
-    """Start quantization of ``m`` (a model or a skybox atlas) from the touched texels of every rank, with
-    rank 0's k-means codebook on every rank."""
-    if exchange is None:
+def _start_vq(models: list, exchange: GradientExchange | None, step: int) -> int:
+    """Start quantization of each of ``models`` (the model, a skybox atlas) from the touched texels of every rank,
+    with rank 0's k-means codebook on every rank; returns ``step``."""
+    for m in models:
+        if exchange is not None:
+            exchange.union(m.touched)
         m.start_vq()
-        return
-    exchange.union(m.touched)
-    m.start_vq()
-    exchange.agree([m.vq.codebook.data])
+        if exchange is not None:
+            exchange.agree([m.vq.codebook.data])
+    return step
 
 
 @torch.no_grad()

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from ..config import TextureConfig, TrainConfig
 from ..geometry.mesh import MeshData
 
 if TYPE_CHECKING:
@@ -265,8 +266,8 @@ def training_time_budget(teacher_seconds: float, teacher_pixels: int, eval_pixel
     return float(max(floor_s, fraction * (teacher_seconds + per_pixel * eval_pixels)))
 
 
-def probe_training_speed(feature_dim: int, hidden: int, num_layers: int, batch_patches: int, patch: int,
-                         steps: int = 60, side: int = 256, device: torch.device | str | None = None) -> float:
+def probe_training_speed(texture: TextureConfig, train: TrainConfig, steps: int = 60, side: int = 256,
+                         device: torch.device | str | None = None) -> float:
     """Optimisation steps per second of ``neural.train.fit`` on ``device`` (default the CPU) for this model size,
     measured on a small synthetic problem (random uvs; a step's cost does not depend on the data) after 20
     warm-up steps (on an H100 the demo's model trains at 267 steps/s where its 16 CPU cores probe 106).
@@ -276,14 +277,15 @@ def probe_training_speed(feature_dim: int, hidden: int, num_layers: int, batch_p
     from ..neural.train import fit
 
     gen = torch.Generator().manual_seed(0)
-    n, h, w = 2, 4 * patch, 4 * patch
-    model = NeuralTextureModel(side, side, feature_dim=feature_dim, hidden=hidden, num_layers=num_layers,
-                               use_vq=False)
+    n, h, w = 2, 4 * train.patch, 4 * train.patch
+    model = NeuralTextureModel(side, side, feature_dim=texture.feature_dim, hidden=texture.hidden,
+                               num_layers=texture.num_layers, use_vq=False)
     uv = torch.rand(n, h, w, 2, generator=gen)
     dirs = torch.nn.functional.normalize(torch.randn(n, h, w, 3, generator=gen), dim=-1)
     data = (uv, torch.ones(n, h, w, dtype=torch.bool), dirs, torch.rand(n, h, w, 3, generator=gen))
-    fit(model, *data, steps=20, batch_patches=batch_patches, patch=patch, progress=False, device=device)
-    rates = [fit(model, *data, steps=max(1, steps // PROBE_SEGMENTS), batch_patches=batch_patches, patch=patch,
+    config = TrainConfig(batch_patches=train.batch_patches, patch=train.patch)   # the batch's size, nothing else
+    fit(model, *data, steps=20, config=config, progress=False, device=device)
+    rates = [fit(model, *data, steps=max(1, steps // PROBE_SEGMENTS), config=config,
                  progress=False, device=device).steps_per_second for _ in range(PROBE_SEGMENTS)]
     return float(max(rates))
 

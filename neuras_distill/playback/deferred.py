@@ -21,7 +21,7 @@ A frame (:meth:`DeferredFrame.draw`):
    its ``main`` turned into a function (:func:`compute_shading_source`; a two-layer bundle's core and shell
    variants as two functions, chosen by the face's layer); RGBA8 result, alpha 1. Pixels without a face get
    the background colour with alpha 0, or, with skyboxes, a second dispatch of the sky shader the same way;
-3. **silhouette pass** (compute), when the bundle has one: ``silhouette.SILHOUETTE_FRAGMENT_SHADER``'s arithmetic
+3. **silhouette pass** (compute), when the bundle has one: ``shaders.SILHOUETTE_FRAGMENT_SHADER``'s arithmetic
    over the whole frame, into a second image (every pixel it does not blend passes through).
 
 The picture is the forward path's up to the barycentrics' rounding (the rasterizer interpolates in its own
@@ -43,8 +43,7 @@ import numpy as np
 from ..bake.shader_interface import CORE_VARIANT, SHELL_VARIANT
 from ..errors import BadInputError
 from .rasterize import draw_mesh, set_raster_state
-from .shaders import VERTEX_SHADER
-from .silhouette import SILHOUETTE_FRAGMENT_SHADER
+from .shaders import SILHOUETTE_FRAGMENT_SHADER, VERTEX_SHADER, VISIBILITY_FRAGMENT_SHADER
 
 #: Compute work group: 16 x 8 pixels (measured on the H100 with the demo's shader: 8 x 8 0.027 ms, 16 x 8
 #: 0.022 ms, 32 x 4 0.023 ms).
@@ -53,15 +52,6 @@ GROUP = (16, 8)
 #: Texture units of the passes' own inputs (the face ids, the scene for the silhouette pass), above the
 #: bundle's textures (units 0, 1, ... in name order; a bundle has at most five).
 DEPTH_UNIT, FACE_UNIT, SCENE_UNIT = 13, 14, 15
-
-#: The visibility pass's fragment stage: the global face index + 1 (``u_face_offset`` as in the G-buffer's).
-VISIBILITY_FRAGMENT_SHADER = """#version 330
-uniform int u_face_offset;
-layout(location = 0) out uint f_face;
-void main() {
-    f_face = uint(gl_PrimitiveID + u_face_offset + 1);
-}
-"""
 
 #: The varyings a playback fragment shader may read (``shaders.py``'s interface); the compute pass sets them.
 _VARYINGS = {"in vec2 v_uv;": "vec2 v_uv;", "in vec3 v_world;": "vec3 v_world;", "in vec3 v_normal;": "vec3 v_normal;"}
@@ -369,5 +359,5 @@ class DeferredFrame:
         self._resources.clear()
 
 
-__all__ = ["GROUP", "DEPTH_UNIT", "FACE_UNIT", "SCENE_UNIT", "VISIBILITY_FRAGMENT_SHADER", "compute_shading_source",
+__all__ = ["GROUP", "DEPTH_UNIT", "FACE_UNIT", "SCENE_UNIT", "compute_shading_source",
            "compute_supported", "DeferredFrame"]

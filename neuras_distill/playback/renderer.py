@@ -31,9 +31,15 @@ from .context import get_context, moderngl_module, software_gl
 from .deferred import DeferredFrame, compute_supported
 from .projection import gl_matrix, mesh_bounds, near_far_for, projection_matrix, screen_box, view_matrix
 from .rasterize import _check_mesh, draw_mesh, mesh_layers, mesh_vertex_array, set_raster_state
-from .shaders import DEPTH_ONLY_FRAGMENT_SHADER, VERTEX_SHADER, shader_variant
-from .silhouette import SILHOUETTE_FRAGMENT_SHADER
-from .silhouette_strips import COPY_FRAGMENT_SHADER, STRIP_VERTEX_SHADER, SilhouetteEdges
+from .shaders import (
+    COPY_FRAGMENT_SHADER,
+    DEPTH_ONLY_FRAGMENT_SHADER,
+    SILHOUETTE_FRAGMENT_SHADER,
+    STRIP_VERTEX_SHADER,
+    VERTEX_SHADER,
+    shader_variant,
+)
+from .silhouette_strips import SilhouetteEdges
 
 
 def _texture_layout(name: str, arr: np.ndarray) -> tuple[int, str]:

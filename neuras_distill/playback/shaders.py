@@ -1,4 +1,6 @@
-"""GLSL sources shared by the G-buffer rasterizer and bundle playback (this module owns the vertex stage).
+"""The player's own GLSL, every pass of it: the vertex stage and G-buffer shaders the rasterizer and bundle playback
+share, the view modes' fragment shaders, the soft-silhouette pass (full screen and in strips) and the deferred
+path's visibility pass. The bundle's shaders (the neural MLP, the skyboxes) are generated in ``bake/glsl*.py``.
 
 Shader interface (see docs/architecture.md, "Shader interface and texture binding"):
   vertex:   in vec3 in_position (world), in vec2 in_uv, in vec3 in_normal (``MeshData.vertex_normals``);
@@ -18,6 +20,8 @@ never sets the uniform gets 0, the core range: still correct for a single-layer 
 A two-layer bundle's fragment shader holds one MLP per layer behind ``#if MESH_LAYER == 1`` (shell) / ``#else``
 (core): a player compiles it once per layer (:func:`shader_variant`) and draws each layer with its program.
 """
+
+from ..bake.shader_interface import SHELL_COVERAGE
 
 VERTEX_SHADER = """#version 330
 uniform mat4 u_mvp;
@@ -79,5 +83,89 @@ def shader_variant(source: str, mesh_layer: int) -> str:
 #: The depth-only prepass of playback (``renderer.BundleRenderer``, ``depth_prepass``): no colour output.
 DEPTH_ONLY_FRAGMENT_SHADER = """#version 330
 void main() {
+}
+"""
+
+
+UV_FRAGMENT_SHADER = """#version 330 core
+// view mode "uv": (u, v) as red/green under a 64 x 64 checker (chart borders show as jumps)
+in vec2 v_uv;
+out vec4 f_color;
+void main() {
+    vec2 cell = floor(v_uv * 64.0);
+    float checker = mod(cell.x + cell.y, 2.0);
+    f_color = vec4(vec3(v_uv, 0.35) * (0.7 + 0.3 * checker), 1.0);
+}
+"""
+
+INDEX_FRAGMENT_SHADER = """#version 330 core
+// view mode "index": the codebook index of the nearest texel, hashed to a colour
+in vec2 v_uv;
+uniform usampler2D u_index;
+out vec4 f_color;
+void main() {
+    ivec2 size = textureSize(u_index, 0);
+    ivec2 texel = clamp(ivec2(floor(v_uv * vec2(size))), ivec2(0), size - 1);
+    uint k = texelFetch(u_index, texel, 0).r;
+    uint h = k * 2654435761u;
+    h ^= h >> 15;
+    h *= 2246822519u;
+    h ^= h >> 13;
+    f_color = vec4(vec3(uvec3(h, h >> 8, h >> 16) & 255u) / 255.0, 1.0);
+}
+"""
+
+#: A full-screen triangle (no vertex buffer: ``gl_VertexID`` 0, 1, 2).
+SILHOUETTE_VERTEX_SHADER = """#version 330
+void main() {
+    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
+    gl_Position = vec4(2.0 * p - 1.0, 0.0, 1.0);
+}
+"""
+
+SILHOUETTE_FRAGMENT_SHADER = """#version 330
+uniform sampler2D u_scene;  // RGBA8 scene pass, LINEAR filtered: rgb, a = coverage (1 mesh or core, 0.302 shell)
+out vec4 f_color;
+bool one_kind(float m) {                     // a 2 x 2 block mean: all empty, all shell or all covered
+    return m < 0.001 || m > 0.999 || abs(m - SHELL_COVERAGE) < 0.01;
+}
+void main() {
+    vec2 size = vec2(textureSize(u_scene, 0));
+    vec2 p = gl_FragCoord.xy / size;         // this pixel's centre
+    vec2 h = 0.5 / size;                     // half a pixel: a LINEAR fetch there is the mean of a 2 x 2 block
+    vec4 a = texture(u_scene, p - h);        // the block of this pixel and its left, lower, lower-left ones
+    vec4 b = texture(u_scene, p + h);        // ... and its right, upper, upper-right ones
+    if (one_kind(a.a) && one_kind(b.a) && abs(a.a - b.a) < 0.01) {
+        f_color = vec4(texture(u_scene, p).rgb, 1.0);
+    } else {                                 // an edge: the tent filter [1 2 1] x [1 2 1] / 16
+        vec4 c = texture(u_scene, p + vec2(h.x, -h.y));
+        vec4 d = texture(u_scene, p + vec2(-h.x, h.y));
+        f_color = vec4(0.25 * (a.rgb + b.rgb + c.rgb + d.rgb), 1.0);
+    }
+}
+""".replace("SHELL_COVERAGE", f"{SHELL_COVERAGE:.5f}")
+
+STRIP_VERTEX_SHADER = """#version 330
+in vec2 in_ndc;             // strip corners, already in normalized device coordinates
+void main() {
+    gl_Position = vec4(in_ndc, 0.0, 1.0);
+}
+"""
+
+#: The second strip draw: copies the blended tiles back into the scene texture.
+COPY_FRAGMENT_SHADER = """#version 330
+uniform sampler2D u_blended;
+out vec4 f_color;
+void main() {
+    f_color = texelFetch(u_blended, ivec2(gl_FragCoord.xy), 0);
+}
+"""
+
+#: The visibility pass's fragment stage: the global face index + 1 (``u_face_offset`` as in the G-buffer's).
+VISIBILITY_FRAGMENT_SHADER = """#version 330
+uniform int u_face_offset;
+layout(location = 0) out uint f_face;
+void main() {
+    f_face = uint(gl_PrimitiveID + u_face_offset + 1);
 }
 """

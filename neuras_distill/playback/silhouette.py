@@ -24,7 +24,7 @@ block's mean alpha equals 0, :data:`SHELL_COVERAGE` or 1 only when its four pixe
 (0.302 is no mean of four values from {0, 0.302, 1} other than four shells; the nearest, 0.326, is 0.024 off).
 Neighbours outside the image are clamped to it (no edges along the image border).
 
-Owns: the GLSL of the pass (:data:`SILHOUETTE_VERTEX_SHADER`, :data:`SILHOUETTE_FRAGMENT_SHADER`) and its numpy
+Owns: the pass's numpy
 mirror :func:`blend_silhouettes` (what the torch reference applies for the GL/torch parity).
 """
 
@@ -33,36 +33,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..bake.shader_interface import SHELL_COVERAGE
-
-#: A full-screen triangle (no vertex buffer: ``gl_VertexID`` 0, 1, 2).
-SILHOUETTE_VERTEX_SHADER = """#version 330
-void main() {
-    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
-    gl_Position = vec4(2.0 * p - 1.0, 0.0, 1.0);
-}
-"""
-
-SILHOUETTE_FRAGMENT_SHADER = """#version 330
-uniform sampler2D u_scene;  // RGBA8 scene pass, LINEAR filtered: rgb, a = coverage (1 mesh or core, 0.302 shell)
-out vec4 f_color;
-bool one_kind(float m) {                     // a 2 x 2 block mean: all empty, all shell or all covered
-    return m < 0.001 || m > 0.999 || abs(m - SHELL_COVERAGE) < 0.01;
-}
-void main() {
-    vec2 size = vec2(textureSize(u_scene, 0));
-    vec2 p = gl_FragCoord.xy / size;         // this pixel's centre
-    vec2 h = 0.5 / size;                     // half a pixel: a LINEAR fetch there is the mean of a 2 x 2 block
-    vec4 a = texture(u_scene, p - h);        // the block of this pixel and its left, lower, lower-left ones
-    vec4 b = texture(u_scene, p + h);        // ... and its right, upper, upper-right ones
-    if (one_kind(a.a) && one_kind(b.a) && abs(a.a - b.a) < 0.01) {
-        f_color = vec4(texture(u_scene, p).rgb, 1.0);
-    } else {                                 // an edge: the tent filter [1 2 1] x [1 2 1] / 16
-        vec4 c = texture(u_scene, p + vec2(h.x, -h.y));
-        vec4 d = texture(u_scene, p + vec2(-h.x, h.y));
-        f_color = vec4(0.25 * (a.rgb + b.rgb + c.rgb + d.rgb), 1.0);
-    }
-}
-""".replace("SHELL_COVERAGE", f"{SHELL_COVERAGE:.5f}")
 
 
 def _block_means(x: np.ndarray) -> list[np.ndarray]:
@@ -110,5 +80,5 @@ def blend_silhouettes(image: np.ndarray, coverage: np.ndarray) -> np.ndarray:
     return np.where(silhouette_edges(coverage)[..., None], tent, img).astype(np.float32)
 
 
-__all__ = ["SHELL_COVERAGE", "SILHOUETTE_VERTEX_SHADER", "SILHOUETTE_FRAGMENT_SHADER", "layer_coverage",
+__all__ = ["SHELL_COVERAGE", "layer_coverage",
            "silhouette_edges", "blend_silhouettes"]

@@ -2,7 +2,7 @@
 silhouette and boundary edges, so the pass shades a few thousand pixels instead of the mesh's whole screen box.
 
 The pass writes into the scene it reads, so it runs in two draws over the same tiles: the blend reads the scene
-texture and writes a second texture, then a plain copy (:data:`COPY_FRAGMENT_SHADER`) writes those tiles back.
+texture and writes a second texture, then a plain copy (``shaders.COPY_FRAGMENT_SHADER``) writes those tiles back.
 
 Why: on llvmpipe the pass over the box cost the demo a third of its frame time at 1920 x 1080 (hard edges
 50.7 ms, soft 75.4 ms: 25 ms of pass, 5 ms of full-frame copy), almost all of it on pixels far from any edge.
@@ -17,7 +17,8 @@ half-width :data:`BLEND_RADIUS_PX` (2.5 px) around every such edge contain all o
 picture as over the box (tests/test_silhouette_strips.py compares the two).
 
 Owns: :class:`SilhouetteEdges` (edge adjacency, precomputed once per mesh; per frame the edges facing-sign test
-and the strip quads) and the GLSL of the strip passes (:data:`STRIP_VERTEX_SHADER`, :data:`COPY_FRAGMENT_SHADER`).
+and the strip quads). The GLSL of the strip passes (``STRIP_VERTEX_SHADER``, ``COPY_FRAGMENT_SHADER``) is in
+``shaders.py``.
 Frames: vertices and the eye in the bundle's frame (``BundleRenderer`` shifts cameras by the bundle's origin),
 clip space from the renderer's own ``mvp_for`` matrix, strips in NDC.
 """
@@ -37,23 +38,6 @@ PIECE_PX = 10.0
 MAX_TILED_EDGES = 6000
 #: Clip-space w below which an edge end counts as behind the camera (clipped there).
 _MIN_W = 1e-6
-
-STRIP_VERTEX_SHADER = """#version 330
-in vec2 in_ndc;             // strip corners, already in normalized device coordinates
-void main() {
-    gl_Position = vec4(in_ndc, 0.0, 1.0);
-}
-"""
-
-#: The second strip draw: copies the blended tiles back into the scene texture.
-COPY_FRAGMENT_SHADER = """#version 330
-uniform sampler2D u_blended;
-out vec4 f_color;
-void main() {
-    f_color = texelFetch(u_blended, ivec2(gl_FragCoord.xy), 0);
-}
-"""
-
 
 def _clip_segments(seg: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
     """The parts of (K, 2, 2) segments inside the rectangle [x0, x1] x [y0, y1] (Liang-Barsky); segments
@@ -208,5 +192,5 @@ class SilhouetteEdges:
         return np.ascontiguousarray(quads.reshape(-1, 2), np.float32)
 
 
-__all__ = ["SilhouetteEdges", "STRIP_VERTEX_SHADER", "COPY_FRAGMENT_SHADER", "BLEND_RADIUS_PX", "TILE_PX",
+__all__ = ["SilhouetteEdges", "BLEND_RADIUS_PX", "TILE_PX",
            "MAX_TILED_EDGES"]

@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import BadInputError
+from .shaders import INDEX_FRAGMENT_SHADER, UV_FRAGMENT_SHADER
 
 #: Mode name -> one-line description (window title, ``view --mode`` help), in key order (1, 2, 3, 4).
 VIEW_MODES = {
@@ -29,37 +30,8 @@ VIEW_MODES = {
     "index": "the codebook index per texel, as a hashed colour",
 }
 
-UV_FRAGMENT_SHADER = """#version 330 core
-// view mode "uv": (u, v) as red/green under a 64 x 64 checker (chart borders show as jumps)
-in vec2 v_uv;
-out vec4 f_color;
-void main() {
-    vec2 cell = floor(v_uv * 64.0);
-    float checker = mod(cell.x + cell.y, 2.0);
-    f_color = vec4(vec3(v_uv, 0.35) * (0.7 + 0.3 * checker), 1.0);
-}
-"""
-
-INDEX_FRAGMENT_SHADER = """#version 330 core
-// view mode "index": the codebook index of the nearest texel, hashed to a colour
-in vec2 v_uv;
-uniform usampler2D u_index;
-out vec4 f_color;
-void main() {
-    ivec2 size = textureSize(u_index, 0);
-    ivec2 texel = clamp(ivec2(floor(v_uv * vec2(size))), ivec2(0), size - 1);
-    uint k = texelFetch(u_index, texel, 0).r;
-    uint h = k * 2654435761u;
-    h ^= h >> 15;
-    h *= 2246822519u;
-    h ^= h >> 13;
-    f_color = vec4(vec3(uvec3(h, h >> 8, h >> 16) & 255u) / 255.0, 1.0);
-}
-"""
-
-
 def index_fragment_shader(pages: int = 1) -> str:
-    """:data:`INDEX_FRAGMENT_SHADER`, or for an atlas in ``pages`` P > 1 (``u_index`` a texture array, v stacked
+    """``shaders.INDEX_FRAGMENT_SHADER``, or for an atlas in ``pages`` P > 1 (``u_index`` a texture array, v stacked
     as in ``neural.texture.bilinear_corners``) the same on the uv's page."""
     if pages <= 1:
         return INDEX_FRAGMENT_SHADER
@@ -100,4 +72,4 @@ def mode_bundle(bundle, mode: str):
     return replace(bundle, fragment_shader=shader)
 
 
-__all__ = ["VIEW_MODES", "mode_bundle", "UV_FRAGMENT_SHADER", "INDEX_FRAGMENT_SHADER", "index_fragment_shader"]
+__all__ = ["VIEW_MODES", "mode_bundle", "index_fragment_shader"]

@@ -21,8 +21,12 @@ import math
 
 import torch
 
+from ..config import TeacherConfig
 from ..device import field_device
 from ..errors import require
+
+#: The library's defaults are the configuration's (one place: ``config.py``).
+_TEACHER = TeacherConfig()
 
 
 class OccupancyGrid:
@@ -102,7 +106,7 @@ class OccupancyGrid:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_field(cls, field, resolution: int = 128, *, margin: float | None = None,
+    def from_field(cls, field, resolution: int = _TEACHER.occupancy_resolution, *, margin: float | None = None,
                    threshold: float = 1e-4, samples_per_cell: int = 2, step: float | None = None,
                    chunk: int = 2**18, seed: int = 0) -> "OccupancyGrid":
         """Build the grid from ``field`` (kind ``"sdf"`` or ``"density"``).

@@ -45,6 +45,7 @@ import time
 import numpy as np
 import torch
 
+from ..config import TeacherConfig
 from ..device import chunk_for_memory, field_device, synchronize
 from ..errors import require
 from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth
@@ -57,6 +58,8 @@ from .rays import ray_aabb
 FRINGE_OPACITY = 0.05
 OUTPUTS = ("rgb", "depth", "surface_depth", "fringe_depth", "opacity")
 
+#: The library's defaults are the configuration's (one place: ``config.py``).
+_TEACHER = TeacherConfig()
 _FAR_SDF = 1e3  # SDF value used for endpoints that were not evaluated (masked out anyway)
 
 
@@ -77,9 +80,10 @@ class VolumeRenderer:
             ``far_region`` (0: the box only, the far region's colour left to the background).
     """
 
-    def __init__(self, field, num_steps: int = 256, chunk: int = 2**15, occupancy="auto",
+    def __init__(self, field, num_steps: int = _TEACHER.num_steps, chunk: int = 2**15, occupancy="auto",
                  early_stop: float = 1e-4, *, segment: int = 32, min_weight: float = 1e-5,
-                 occupancy_resolution: int = 128, device: torch.device | str | None = None, far_steps: int = 0):
+                 occupancy_resolution: int = _TEACHER.occupancy_resolution, device: torch.device | str | None = None,
+                 far_steps: int = _TEACHER.far_steps):
         require(getattr(field, "kind", None) in ("density", "sdf"),
                 f"cannot volume-render a field of kind {getattr(field, 'kind', None)!r}")
         require(int(num_steps) >= 1, f"num_steps must be >= 1, got {num_steps}")

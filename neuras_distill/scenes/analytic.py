@@ -22,6 +22,12 @@ from ..errors import require
 from ..fields.wrappers import DEFAULT_BETA, SDFToDensityField
 
 
+def smoothstep(e0: float, e1: float, x: torch.Tensor) -> torch.Tensor:
+    """Hermite step of ``x`` (any shape) from 0 at ``e0`` to 1 at ``e1`` (GLSL's smoothstep; e0 > e1 falls)."""
+    t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
 class AnalyticSDFField:
     """Base of the analytic SDF fields: kind ``"sdf"``, exact signed distance, simple colour.
 

@@ -38,6 +38,7 @@ import math
 import torch
 
 from ..errors import require
+from .analytic import smoothstep
 from .street import (
     CAR_BODY,
     CAR_CABIN,
@@ -51,7 +52,6 @@ from .street import (
     _cyl,
     _lower_bound_mask,
     _rbox,
-    _smoothstep,
     car_albedo,
     facade_albedo,
     shade_materials,
@@ -293,23 +293,23 @@ class CityField(StreetField):
         asphalt = torch.tensor([0.25, 0.25, 0.26]) + 0.05 * stain[:, None]
         w = 0.04
         on_avenue = (ay < AVENUE_HALF).float()
-        lane = _smoothstep(0.08 + w, 0.08 - w, (ay - 5.0).abs()) * \
-            _smoothstep(-w, w, 1.5 - (torch.remainder(px, 9.0) - 1.5).abs())
-        centre = _smoothstep(0.08 + w, 0.08 - w, (ay - 0.2).abs())
-        edge = _smoothstep(0.08 + w, 0.08 - w, (ay - 9.6).abs())
-        crossing = _smoothstep(w, -w, (xl.abs() - CROSS_HALF - 2.5).abs() - 1.5) * \
-            _smoothstep(0.25 + w, 0.25 - w, (torch.remainder(py + 0.5, 1.0) - 0.5).abs())
+        lane = smoothstep(0.08 + w, 0.08 - w, (ay - 5.0).abs()) * \
+            smoothstep(-w, w, 1.5 - (torch.remainder(px, 9.0) - 1.5).abs())
+        centre = smoothstep(0.08 + w, 0.08 - w, (ay - 0.2).abs())
+        edge = smoothstep(0.08 + w, 0.08 - w, (ay - 9.6).abs())
+        crossing = smoothstep(w, -w, (xl.abs() - CROSS_HALF - 2.5).abs() - 1.5) * \
+            smoothstep(0.25 + w, 0.25 - w, (torch.remainder(py + 0.5, 1.0) - 0.5).abs())
         paint = torch.maximum(torch.maximum(lane, centre), edge) * (xl.abs() > CROSS_HALF + 4.5).float()
         paint = torch.maximum(paint, crossing) * on_avenue
         road = asphalt + (torch.tensor([0.86, 0.86, 0.82]) - asphalt) * paint[:, None]
         jx = (torch.remainder(px, 1.5) - 0.75).abs()
         jy = (torch.remainder(ay, 1.5) - 0.75).abs()
-        joint = torch.maximum(_smoothstep(0.70, 0.74, jx), _smoothstep(0.70, 0.74, jy))
+        joint = torch.maximum(smoothstep(0.70, 0.74, jx), smoothstep(0.70, 0.74, jy))
         walk = torch.tensor([0.62, 0.60, 0.56]) * (1.0 - 0.25 * joint)[:, None]
         park = ((torch.floor(px / BLOCK) == PARK[0]) & (py * PARK[1] > FACADE_Y[0]))
         grass = torch.tensor([0.24, 0.38, 0.14]) * (0.9 + 0.1 * stain)[:, None]
         walk = torch.where(park[:, None], grass, walk)
-        raised = _smoothstep(0.03, 0.1, pz)[:, None]
+        raised = smoothstep(0.03, 0.1, pz)[:, None]
         return road + (walk - road) * raised
 
     def _sun_visibility(self, p: torch.Tensor) -> torch.Tensor:
@@ -325,7 +325,7 @@ class CityField(StreetField):
             dist = self._scene(p[live] + t[live, None] * sun)
             vis[live] = torch.minimum(vis[live], (8.0 * dist / t[live]).clamp(0.0, 1.0))
             t[live] = t[live] + dist.clamp(0.3, 20.0)
-        return _smoothstep(0.0, 1.0, vis)
+        return smoothstep(0.0, 1.0, vis)
 
     # ------------------------------------------------------------------ cameras
     def default_cameras(self, n: int, width: int = 320, height: int = 180):

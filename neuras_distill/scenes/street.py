@@ -47,6 +47,7 @@ import torch
 import torch.nn.functional as F
 
 from ..errors import require
+from .analytic import smoothstep
 
 # ---------------------------------------------------------------------------------------------- layout
 ROAD_HALF = 3.5            # asphalt |y| < 3.5 (two 3.5 m lanes)
@@ -152,11 +153,6 @@ _SUB = 64                  # material code = material * _SUB + sub index
 
 
 # ---------------------------------------------------------------------------------------------- primitives
-def _smoothstep(e0: float, e1: float, x: torch.Tensor) -> torch.Tensor:
-    t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
-
-
 def _rbox(ax, ay, az, hx, hy, hz, r=0.0):
     """Rounded box SDF from |local coordinates| ax, ay, az (any broadcastable shapes), half sizes and rounding
     (the outer extent is the half size)."""
@@ -211,17 +207,17 @@ def facade_albedo(ps, n, wall, frame, glass, win, x0, x1, yf, h, back_y):
     box = torch.maximum(du.abs() - hw2, dvv.abs() - hh2)  # signed 2D distance to the window rectangle
     e = 0.025
     has_window = (upper | (ground & in_cols & front)).float()
-    frame_m = _smoothstep(e, -e, box) * has_window
-    glass_m = _smoothstep(e, -e, box + 0.09) * has_window
+    frame_m = smoothstep(e, -e, box) * has_window
+    glass_m = smoothstep(e, -e, box + 0.09) * has_window
     c = wall * (0.93 + 0.07 * torch.sin(0.5 * pz + 0.3 * px)[:, None])
-    band = _smoothstep(-0.05, 0.05, zz - GROUND_FLOOR + 0.25) * \
-        _smoothstep(0.05, -0.05, zz - GROUND_FLOOR)  # cornice over the shop fronts
+    band = smoothstep(-0.05, 0.05, zz - GROUND_FLOOR + 0.25) * \
+        smoothstep(0.05, -0.05, zz - GROUND_FLOOR)  # cornice over the shop fronts
     c = c * (1.0 - 0.25 * band[:, None])
-    parapet = _smoothstep(h - 0.65, h - 0.55, pz)
+    parapet = smoothstep(h - 0.65, h - 0.55, pz)
     c = c * (1.0 - 0.2 * parapet[:, None])
     c = c + (frame - c) * frame_m[:, None]
     c = c + (glass - c) * glass_m[:, None]
-    roof = _smoothstep(0.6, 0.8, n[:, 2])[:, None]
+    roof = smoothstep(0.6, 0.8, n[:, 2])[:, None]
     c = c + (torch.tensor([0.30, 0.29, 0.28]) - c) * roof
     return c, glass_m * (1.0 - roof[:, 0])
 
@@ -542,7 +538,7 @@ class StreetField:
         ang = torch.rad2deg(torch.acos(cos_sun))
         glow = (0.45 * torch.exp(-ang / 4.0) + 0.18 * torch.exp(-ang / 25.0))[:, None]
         sky = sky + glow * torch.tensor([1.0, 0.85, 0.6])
-        disc = _smoothstep(SUN_RADIUS_DEG + 0.25, SUN_RADIUS_DEG, ang)[:, None]
+        disc = smoothstep(SUN_RADIUS_DEG + 0.25, SUN_RADIUS_DEG, ang)[:, None]
         sky = sky + (torch.tensor([1.0, 0.98, 0.92]) - sky).clamp(min=0.0) * disc
         # distant hills (elevation profile in degrees vs azimuth)
         far = (3.6 + 1.3 * torch.sin(2.0 * az + 0.4) + 0.8 * torch.sin(5.0 * az + 1.7)
@@ -551,26 +547,26 @@ class StreetField:
                 + 0.15 * torch.sin(19.0 * az + 1.0)).clamp(1.0, 3.5)
         hill_rgb = torch.tensor(HILL_FAR_RGB)
         hill_far = hill_rgb + (hor - hill_rgb) * (0.35 * (el / far).clamp(0, 1))[:, None]  # hazier higher up
-        col = sky + (hill_far - sky) * _smoothstep(0.06, -0.06, el - far)[:, None]
+        col = sky + (hill_far - sky) * smoothstep(0.06, -0.06, el - far)[:, None]
         # city skyline: blocks of hashed heights in an azimuth band ahead, in a dip of the near hills
         azd = torch.rad2deg(az)
         lo_az, hi_az = SKYLINE_AZ_DEG
         block = torch.floor(azd / 1.3)
         hsh = torch.frac(torch.sin(block * 12.9898 + 4.1) * 43758.5453).abs()
         centre = (block + 0.5) * 1.3
-        taper = _smoothstep(lo_az, lo_az + 10.0, centre) * _smoothstep(hi_az, hi_az - 10.0, centre)
+        taper = smoothstep(lo_az, lo_az + 10.0, centre) * smoothstep(hi_az, hi_az - 10.0, centre)
         city_h = (1.2 + 3.6 * hsh.square()) * (0.45 + 0.55 * taper) * (taper > 0.05).float()
         city = torch.tensor(CITY_RGB) * (0.88 + 0.12 * hsh)[:, None]
-        city_m = _smoothstep(0.04, -0.04, el - city_h)[:, None]
+        city_m = smoothstep(0.04, -0.04, el - city_h)[:, None]
         col = col + (city - col) * city_m
-        band = _smoothstep(lo_az - 5.0, lo_az + 8.0, azd) * _smoothstep(hi_az + 5.0, hi_az - 8.0, azd)
+        band = smoothstep(lo_az - 5.0, lo_az + 8.0, azd) * smoothstep(hi_az + 5.0, hi_az - 8.0, azd)
         near = near * (1.0 - 0.55 * band) + 0.3 * band
         near_col = torch.tensor(HILL_NEAR_RGB) * (0.9 + 0.1 * torch.sin(11.0 * az))[:, None]
-        col = col + (near_col - col) * _smoothstep(0.05, -0.05, el - near)[:, None]
+        col = col + (near_col - col) * smoothstep(0.05, -0.05, el - near)[:, None]
         # below the horizon: hazy ground, darker looking down
         g_far, g_near = torch.tensor(GROUND_FAR_RGB), torch.tensor(GROUND_NEAR_RGB)
-        gnd = g_far + (g_near - g_far) * _smoothstep(0.0, -25.0, el)[:, None]
-        col = col + (gnd - col) * _smoothstep(0.15, -0.35, el)[:, None]
+        gnd = g_far + (g_near - g_far) * smoothstep(0.0, -25.0, el)[:, None]
+        col = col + (gnd - col) * smoothstep(0.15, -0.35, el)[:, None]
         return col.clamp(0.0, 1.0)
 
     # ------------------------------------------------------------------ appearance
@@ -609,25 +605,25 @@ class StreetField:
         stain = 0.5 + 0.5 * torch.sin(0.37 * px + 1.1 * torch.sin(0.9 * py)) * torch.sin(0.23 * px - 0.8 * py)
         asphalt = torch.tensor([0.25, 0.25, 0.26]) + 0.05 * stain[:, None]
         w = 0.03  # soft edge of painted lines (m)
-        centre = _smoothstep(0.075 + w, 0.075 - w, py.abs())
-        dash = _smoothstep(-w, w, 1.5 - (torch.remainder(px, 9.0) - 1.5).abs())
-        edge = _smoothstep(0.075 + w, 0.075 - w, (ay - 3.2).abs())
-        zx = _smoothstep(w, -w, (px + 3.0).abs() - 1.5)  # crossing at x in [-4.5, -1.5]
-        stripes = _smoothstep(0.25 + w, 0.25 - w, (torch.remainder(py + 0.5, 1.0) - 0.5).abs()) * \
-            _smoothstep(w, -w, ay - 3.0)
+        centre = smoothstep(0.075 + w, 0.075 - w, py.abs())
+        dash = smoothstep(-w, w, 1.5 - (torch.remainder(px, 9.0) - 1.5).abs())
+        edge = smoothstep(0.075 + w, 0.075 - w, (ay - 3.2).abs())
+        zx = smoothstep(w, -w, (px + 3.0).abs() - 1.5)  # crossing at x in [-4.5, -1.5]
+        stripes = smoothstep(0.25 + w, 0.25 - w, (torch.remainder(py + 0.5, 1.0) - 0.5).abs()) * \
+            smoothstep(w, -w, ay - 3.0)
         paint = torch.maximum(torch.maximum(centre * dash * (1 - zx), edge * (1 - zx)), zx * stripes)
         road = asphalt + (torch.tensor([0.86, 0.86, 0.82]) - asphalt) * paint[:, None]
         # sidewalk: paving slabs 1.2 m with dark joints; curb stones
         jx = (torch.remainder(px, 1.2) - 0.6).abs()
         jy = (torch.remainder(ay - 3.75, 1.2) - 0.6).abs()
-        joint = torch.maximum(_smoothstep(0.56, 0.59, jx), _smoothstep(0.56, 0.59, jy))
+        joint = torch.maximum(smoothstep(0.56, 0.59, jx), smoothstep(0.56, 0.59, jy))
         walk = torch.tensor([0.62, 0.60, 0.56]) * (1.0 - 0.25 * joint)[:, None]
         curb = torch.tensor([0.70, 0.70, 0.68])
         grass = torch.tensor([0.24, 0.38, 0.14]) * (0.9 + 0.1 * stain)[:, None]
-        on_walk = _smoothstep(0.03, 0.1, pz)[:, None]  # raised part (sidewalk or curb face)
-        is_curb = _smoothstep(3.78, 3.72, ay)[:, None]
+        on_walk = smoothstep(0.03, 0.1, pz)[:, None]  # raised part (sidewalk or curb face)
+        is_curb = smoothstep(3.78, 3.72, ay)[:, None]
         open_ground = (((py > 0) & (px > 25.5)) | ((py < 0) & (px > 30.5))).float()
-        is_grass = (_smoothstep(6.6, 6.9, ay) * open_ground)[:, None]
+        is_grass = (smoothstep(6.6, 6.9, ay) * open_ground)[:, None]
         side = walk + (curb - walk) * is_curb
         side = side + (grass - side) * is_grass
         return road + (side - road) * on_walk
@@ -648,7 +644,7 @@ class StreetField:
             t_in = t_in.clamp_(min=0.0)
             t_out = torch.minimum(torch.minimum(leave[0] - q[0], leave[1] - q[1]), leave[2] - q[2])
             occ = torch.maximum(occ, t_out.sub_(t_in))
-        occ = _smoothstep(0.0, 0.5, occ)
+        occ = smoothstep(0.0, 0.5, occ)
         sun = self.sun_dir.tolist()
         px, py, pz = p.T.unbind(0)
         for tx, ty, _, cz, r in TREES:
@@ -656,7 +652,7 @@ class StreetField:
             tc = ox * sun[0] + oy * sun[1] + oz * sun[2]
             dist2 = ox.square() + oy.square() + oz.square() - tc.square()
             chord = (r * r - dist2).clamp_(min=0.0).sqrt_() * (tc > 0)
-            occ = torch.maximum(occ, 0.8 * _smoothstep(0.0, 1.2, chord))
+            occ = torch.maximum(occ, 0.8 * smoothstep(0.0, 1.2, chord))
         return 1.0 - occ
 
     @staticmethod

@@ -38,7 +38,7 @@ import torch.nn.functional as F
 
 from ..errors import BadInputError
 from ..fields.wrappers import SDFToDensityField
-from .analytic import SphereSDF, TorusSDF, orbit_framing
+from .analytic import SphereSDF, TorusSDF, orbit_framing, smoothstep
 from .city import CITY_BETA, make_city, make_small_city
 from .gradient_ball import make_gradient_ball
 from .street import STREET_BETA, make_street
@@ -193,11 +193,6 @@ def load_bunny_grid(resolution: int = GRID_RESOLUTION) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- field
-def _smoothstep(e0: float, e1: float, x: torch.Tensor) -> torch.Tensor:
-    t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
-
-
 class BunnyField:
     """The bunny-on-a-disc scene as an SDF field (kind ``"sdf"``), z up, 1 unit tall.
 
@@ -284,7 +279,7 @@ class BunnyField:
         caramel = torch.tensor([0.78, 0.47, 0.24])
         cocoa = torch.tensor([0.36, 0.22, 0.15])
         c = cream + (caramel - cream) * t
-        speck = _smoothstep(0.55, 0.85, torch.sin(83.0 * px + 5.0 * warp) * torch.sin(79.0 * py - 71.0 * pz))
+        speck = smoothstep(0.55, 0.85, torch.sin(83.0 * px + 5.0 * warp) * torch.sin(79.0 * py - 71.0 * pz))
         c = c + (cocoa - c) * (0.8 * speck)[:, None]
         r = x[:, :2].norm(dim=-1)
         ring = 0.5 + 0.5 * torch.sin(70.0 * r + 2.0 * torch.sin(5.0 * torch.atan2(py, px)))

@@ -33,11 +33,9 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
                                + ", "
                                f"{plan.steps} steps" + (f" (at most {plan.time_budget_s:.0f} s)"
                                                         if plan.time_budget_s else ""))
-    model = NeuralTextureModel(height, side, feature_dim=t.feature_dim, num_codes=t.num_codes,
-                               hidden=t.hidden, num_layers=t.num_layers, use_viewdir=inputs.use_viewdir,
-                               use_facing=inputs.use_facing, mesh_layers=len(training.mesh.layers()),
-                               core_viewdir=inputs.core_viewdir, shell_hidden=t.shell_hidden, use_vq=t.quantize,
-                               pages=pages, quantize_above=t.quantize_above)
+    model = NeuralTextureModel.for_atlas(t, height, side, pages=pages, mesh_layers=len(training.mesh.layers()),
+                                         use_viewdir=inputs.use_viewdir, use_facing=inputs.use_facing,
+                                         core_viewdir=inputs.core_viewdir)
     skybox = backdrop.skybox
     key = digest("distill", ctx.keys["gbuffer"], ctx.keys["plan"], plan.steps, plan.time_budget_s,
                  settings(cfg.texture), settings(cfg.train, ("checkpoint_every_s",)), settings(cfg.skybox),
@@ -49,14 +47,10 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
 
     def train() -> TrainedModel:
         gb = training.gbuffer
-        tr = cfg.train
         train_fn = fit if ctx.pool is None else ctx.pool.fit      # --nproc N: data-parallel over the workers
-        log = train_fn(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, lr=tr.lr,
-                  texture_lr_scale=tr.texture_lr_scale,
-                  batch_patches=tr.batch_patches, patch=tr.patch, ssim_weight=tr.ssim_weight,
-                  vq_warmup=tr.vq_warmup, time_budget_s=plan.time_budget_s, progress=ctx.progress, seed=tr.seed,
-                  skybox=skybox, origins=backdrop.sky_origins, sky_pixels=backdrop.sky_pixels,
-                  checkpoint=checkpoint, device=ctx.device)
+        log = train_fn(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, config=cfg.train,
+                       time_budget_s=plan.time_budget_s, skybox=skybox, origins=backdrop.sky_origins,
+                       sky_pixels=backdrop.sky_pixels, checkpoint=checkpoint, device=ctx.device, progress=ctx.progress)
         if log.resumed_from_step:
             ctx.log(f"distill: continued from the checkpoint at step {log.resumed_from_step}")
         return TrainedModel.of(model, skybox, log.as_dict())

@@ -103,13 +103,10 @@ def extract(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, enclose
     trial_side = min(1024, ctx.cfg.texture.max_resolution)
 
     def compute() -> Surface:
-        return extract_surface(ctx.field, views.train, grid_resolution=g.grid_resolution, face_budget=g.face_budget,
-                               trial_resolution=trial_side, unwrap_timeout_s=g.unwrap_timeout_s,
-                               cull_unseen=g.cull_unseen, density_level=getattr(ctx.field, "surface_level", None),
-                               cull_margin_deg=g.cull_margin_deg,
+        return extract_surface(ctx.field, views.train, g, trial_resolution=trial_side,
+                               density_level=getattr(ctx.field, "surface_level", None),
                                field_opacity=teacher.opacities if enclose else None,
-                               field_depth=(teacher.surface_depths, teacher.fringe_depths, teacher.opacities),
-                               core_level=g.core_level, from_depths=g.surface == "depths", shell=g.shell)
+                               field_depth=(teacher.surface_depths, teacher.fringe_depths, teacher.opacities))
 
     key = digest("surface", ctx.keys["teacher"], settings(g, ("cull_back_faces",)), trial_side, enclose)
     return ctx.cached("surface", key, compute, Surface.save, Surface.load)

@@ -127,8 +127,6 @@ def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -
     if tr.steps:                   # configured steps run to the end unless a time budget is configured too
         return TrainingPlan(time_budget_s=tr.time_budget_s or None, samples_per_step=samples_per_step,
                             steps_per_second=None, configured_steps=tr.steps, max_steps=tr.steps)
-    t = cfg.texture
-    speed = decisions.probe_training_speed(t.feature_dim, t.hidden, t.num_layers, tr.batch_patches, tr.patch,
-                                           device=ctx.device)
+    speed = decisions.probe_training_speed(cfg.texture, tr, device=ctx.device)
     return TrainingPlan(time_budget_s=float(budget), samples_per_step=samples_per_step, steps_per_second=speed,
                         configured_steps=None, max_steps=max(decisions.MIN_TRAIN_STEPS, int(budget * speed)))
