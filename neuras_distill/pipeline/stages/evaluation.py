@@ -12,6 +12,7 @@ from ...playback.projection import shift_cameras
 from ...playback.rasterize import rasterize_gbuffer
 from ...playback.renderer import BundleRenderer
 from ...render.cameras import Cameras
+from ...render.occupancy import OccupancyGrid
 from ...render.volume import VolumeRenderer
 from .. import evaluate
 from ..cache import digest
@@ -74,9 +75,7 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
     plain = evaluate.plain_texture_baseline(distilled.model, bundle, training.gbuffer, training.dirs, test,
                                             field_images, bundle_images, coverages, cfg.eval.fps_frames)
     lap("plain_texture")
-    # a density field's occupancy grid does not depend on the step count: the curve's renderers reuse the
-    # teacher's instead of building their own (for the plain-PyTorch nerfacto field each build cost 23 s)
-    grid = teacher.occupancy if ctx.field.kind == "density" and teacher.occupancy is not None else "auto"
+    grid = curve_occupancy(ctx, teacher)
     far = cfg.teacher.far_steps / cfg.teacher.num_steps        # the far region's samples scale with the box's
     points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(ctx.field, num_steps=s, occupancy=grid,
                                                                 far_steps=max(1, round(far * s)) if far else 0), test,
@@ -89,6 +88,21 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
                    hole_fraction=fidelity["hole_fraction"], fidelity_seconds=fidelity_seconds)
     return Evaluation(field_views, bundle_images, quality, parity, fidelity, flip_maps, fidelity_seconds, ablation,
                       timing, player.silhouette_blend, plain, points, extrapolation, extra_views, parts)
+
+
+def curve_occupancy(ctx: RunContext, teacher: VolumeRenderer):
+    """The occupancy grid the error-vs-runtime curve's renderers share, built at most once. A density field's
+    does not depend on the step count: the teacher's (for the plain-PyTorch nerfacto field each build cost
+    23 s). An SDF's margin grows with the step: one grid for the coarsest step of the curve holds every cell a
+    finer march needs (on the NeuS fixture each build cost 5 s of a 40 s test run). "auto" for a field with its
+    own grid."""
+    if ctx.field.kind == "density" and teacher.occupancy is not None:
+        return teacher.occupancy
+    if ctx.field.kind != "sdf" or teacher.occupancy is None or callable(getattr(ctx.field, "occupancy_grid", None)):
+        return "auto"
+    coarsest = min([*ctx.cfg.eval.runtime_steps, ctx.cfg.teacher.num_steps])
+    return OccupancyGrid.from_field(ctx.field, ctx.cfg.teacher.occupancy_resolution,
+                                    step=teacher.diagonal / max(coarsest, 1))
 
 
 def lane_shift_views(field: Field, teacher: VolumeRenderer, player: BundleRenderer, test: Cameras,
