@@ -16,7 +16,11 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
     p.add_argument("--config", default=None, help="TOML file overriding settings (see configs/)")
     p.add_argument("--face-budget", type=int, default=None, help="maximum faces after decimation")
     p.add_argument("--steps", type=int, default=None,
-                   help="distillation steps (default 0: planned from the atlas within the time budget)")
+                   help="distillation steps (default 0: planned: enough for the atlas, fewer when held-back pixels "
+                        "stop improving, within the time budget)")
+    p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                   help="cap on the whole run's wall time: training gets what the stages before it leave, less the "
+                        "evaluation's estimated time (default: none; training alone stops at 600 s)")
     p.add_argument("--texture-resolution", type=int, default=None, help="side of the feature atlas in texels")
     p.add_argument("--view-dependence", choices=["auto", "on", "off"], default=None,
                    help="view-direction input of the shader (auto: decided from the field)")

@@ -220,16 +220,15 @@ class TrainConfig:
 
     steps: int = 0
     """Optimisation steps. 0 (default): planned per run from what the scene needs, 2048 training samples per
-    used texel of the atlas (``pipeline.decisions.training_steps``), within the time budget; reported in the
-    report's ``training_plan``. Configured steps run to the end unless ``time_budget_s`` is set too."""
+    used texel of the atlas (``pipeline.decisions.training_steps``), stopped earlier when held-back training
+    pixels stop improving (``neural.convergence``) or at the time budget; the report says which rule stopped it
+    (``training_stop``). Configured steps run to the end unless a time budget is set too."""
     time_budget_s: float = 0.0
-    """Stop training after this many seconds. 0 (default): as long as the run spends volume rendering
-    the field (teacher renders plus held-out evaluation, ``decisions.training_time_budget``) and extracting the
-    surface (``pipeline.stages.geometry.with_surface_time``)."""
-    budget_share: float = 0.0
-    """With ``time_budget_s`` 0: training's budget as a share of the time the run spends volume rendering and
-    extracting the surface. 0 (default): ``pipeline.decisions.TRAIN_TIME_FRACTION`` (1.0). The city preset
-    keeps 0.5: twice its training bought nothing there."""
+    """Training's own cap in seconds. 0 (default): what ``run_budget_s`` leaves it, or
+    ``pipeline.decisions.TRAIN_CAP_S`` (600 s) without one."""
+    run_budget_s: float = 0.0
+    """The whole run's cap in seconds (``--time-budget``): training gets what the stages before it leave, less
+    the evaluation's estimated time. 0 (default): no cap on the run."""
     lr: float = 0.01
     """Adam learning rate of the shader and codebook (NeuRas uses 0.01)."""
     texture_lr_scale: float = 9.0
@@ -317,8 +316,8 @@ class DistillConfig:
         require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")
         require(tr.time_budget_s >= 0,
                 f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
-        require(0.0 <= tr.budget_share <= 16.0,
-                f"train.budget_share must be in 0..16 (0: the default share), got {tr.budget_share}")
+        require(tr.run_budget_s >= 0,
+                f"the run's time budget must be >= 0 seconds (0: none), got {tr.run_budget_s}; pass --time-budget 600")
         require(0.0 < tr.lr <= 1.0 and 0.0 < tr.texture_lr_scale <= 100.0,
                 f"train.lr must be in (0, 1] and train.texture_lr_scale in (0, 100], got {tr.lr} and "
                 f"{tr.texture_lr_scale}")

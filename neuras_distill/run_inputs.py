@@ -17,6 +17,8 @@ def _config_from_args(args):
         overrides.setdefault("geometry", {})["face_budget"] = args.face_budget
     if args.steps is not None:
         overrides.setdefault("train", {})["steps"] = args.steps
+    if getattr(args, "time_budget", None) is not None:
+        overrides.setdefault("train", {})["run_budget_s"] = args.time_budget
     if args.texture_resolution is not None:
         overrides.setdefault("texture", {})["resolution"] = args.texture_resolution
     if args.view_dependence is not None:

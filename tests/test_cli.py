@@ -52,6 +52,14 @@ def test_face_budget_zero(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_time_budget_the_stages_before_training_spend_is_refused(tmp_path):
+    result = _run("from-synthetic", "sphere", "--preset", "fast", "--time-budget", "1", "--out", str(tmp_path / "r"),
+                  "--quiet")
+    _one_line_error(result, "--time-budget 1: the stages before training took")
+    assert "or more" in result.stderr and not (tmp_path / "r").exists()
+
+
+@pytest.mark.slow
 def test_unknown_scene(tmp_path):
     result = _run("from-synthetic", "teapot-xl", "--out", str(tmp_path / "r"), "--quiet")
     _one_line_error(result, "teapot-xl")

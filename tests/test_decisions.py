@@ -55,28 +55,38 @@ def test_training_budget_limits_the_atlas():
     assert training_budget_resolution(10, 1.0) == 128
 
 
-def test_the_training_budget_counts_the_surface_extraction():
-    """An automatic plan gets TRAIN_TIME_FRACTION of the surface's stored seconds on top of its share of the
-    volume rendering; configured budgets and steps are left alone."""
-    from types import SimpleNamespace
+def test_a_run_budget_leaves_training_what_the_earlier_stages_and_the_evaluation_leave():
+    """--time-budget caps the whole run: training gets the budget less the time spent and the evaluation's
+    estimate; a budget already spent is refused with one line naming a budget that would do."""
+    from neuras_distill.errors import BadInputError
+    from neuras_distill.pipeline.decisions import evaluation_seconds, run_budget_left
 
-    import neuras_distill as nd
-    from neuras_distill.pipeline.decisions import TRAIN_TIME_FRACTION
+    assert evaluation_seconds(60.0, 10**6, 2 * 10**5) == pytest.approx(12.0)     # the teacher's seconds per pixel
+    assert run_budget_left(300.0, 100.0, 40.0) == 160.0
+    with pytest.raises(BadInputError, match=r"--time-budget 120: the stages before training took 100 s and the "
+                                            r"evaluation needs about 40 s.*pass --time-budget 270 or more"):
+        run_budget_left(120.0, 100.0, 40.0)
+
+
+def test_the_report_names_the_rule_that_stopped_training():
+    from neuras_distill.pipeline.run_report import training_stop
     from neuras_distill.pipeline.stage_results import TrainingPlan
-    from neuras_distill.pipeline.stages.geometry import with_surface_time
 
-    auto = TrainingPlan(time_budget_s=28.0, samples_per_step=8192, steps_per_second=95.0, configured_steps=None,
-                        max_steps=2660)
-    ctx = SimpleNamespace(cfg=nd.load_config("fast"))
-    grown = with_surface_time(ctx, auto, 28.0)
-    assert grown.time_budget_s == 28.0 + TRAIN_TIME_FRACTION * 28.0
-    assert grown.max_steps == int(grown.time_budget_s * 95.0) > auto.max_steps and auto.time_budget_s == 28.0
-    assert with_surface_time(ctx, auto, None) is auto                  # a surface stored without its timing
-    half = SimpleNamespace(cfg=nd.load_config("fast", overrides={"train": {"budget_share": 0.5}}))
-    assert with_surface_time(half, auto, 28.0).time_budget_s == 28.0 + 0.5 * 28.0      # a configured share
-    assert nd.load_config("city").train.budget_share == 0.5 and TRAIN_TIME_FRACTION == 1.0
-    fixed = TrainingPlan(time_budget_s=None, samples_per_step=8192, steps_per_second=None, configured_steps=500,
-                         max_steps=500)
-    assert with_surface_time(ctx, fixed, 28.0) is fixed
-    budgeted = SimpleNamespace(cfg=nd.load_config("fast", overrides={"train": {"time_budget_s": 30.0}}))
-    assert with_surface_time(budgeted, auto, 28.0) is auto
+    auto = TrainingPlan(time_budget_s=600.0, samples_per_step=8192, steps_per_second=100.0, configured_steps=None,
+                        max_steps=60000, steps=7009, needed_steps=7009, used_texels=28032)
+    log = {"steps": 7009, "stopped_by": "steps", "seconds": 70.0, "held_back": []}
+    assert training_stop(auto, log) == {"rule": "texel rule", "steps": 7009,
+                                         "why": "7009 steps gave every used texel about 2048 training samples"}
+    plateau = dict(log, steps=6475, stopped_by="plateau", held_back=[[6300, 31.83], [6475, 31.80]])
+    assert training_stop(auto, plateau)["rule"] == "plateau"
+    assert "best 31.83 dB at step 6300; 6475 of the 7009 planned steps" in training_stop(auto, plateau)["why"]
+    late = dict(log, steps=5000, stopped_by="time_budget", seconds=600.2)
+    assert training_stop(auto, late) == {"rule": "time budget", "steps": 5000,
+                                         "why": "the time budget ran out after 600 s, at step 5000 of 7009"}
+    short = TrainingPlan(time_budget_s=20.0, samples_per_step=8192, steps_per_second=100.0, configured_steps=None,
+                         max_steps=2000, steps=2000, needed_steps=7009, used_texels=28032)
+    assert training_stop(short, dict(log, steps=2000))["rule"] == "time budget"
+    fixed = TrainingPlan(time_budget_s=None, samples_per_step=8192, steps_per_second=None, configured_steps=300,
+                         max_steps=300, steps=300, needed_steps=7009, used_texels=28032)
+    assert training_stop(fixed, dict(log, steps=300)) == {"rule": "configured steps", "steps": 300,
+                                                          "why": "the 300 configured steps ran"}

@@ -94,7 +94,7 @@ def test_skybox_texture_and_eval_settings_are_validated():
                         ({"texture": {"resolution": 8}}, "texture resolution"),
                         ({"eval": {"width": 8}}, "at least 16"),
                         ({"eval": {"max_upscale": -1.0}}, "max_upscale"),
-                        ({"train": {"budget_share": -0.5}}, "budget_share"),
+                        ({"train": {"run_budget_s": -5.0}}, "time budget"),
                         ({"train": {"texture_lr_scale": 0.0}}, "texture_lr_scale"),
                         ({"train": {"lr": float("nan")}}, "train.lr"),
                         ({"train": {"patch": 0}}, "train.patch"),

@@ -8,6 +8,7 @@ import torch
 
 from neuras_distill.config import TrainConfig
 from neuras_distill.errors import BadInputError
+from neuras_distill.neural.convergence import PlateauStop
 from neuras_distill.neural.losses import PerceptualLoss, ssim, vgg16_features
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.shader import MLPShader
@@ -305,6 +306,46 @@ def test_fit_keeps_the_texels_exact_when_they_fit_the_index():
     log = fit(capped, *data, steps=60, config=TrainConfig(batch_patches=8, patch=16), progress=False, num_threads=1)
     assert capped.quantizing and not log.exact_codes and log.vq_start_step == 60
     assert capped.baked_features()[1].shape[0] <= 64
+
+
+def test_the_plateau_rule_waits_for_half_the_run_and_a_flat_stretch():
+    stop = PlateauStop(check_every=10, patience=3, min_gain_db=0.05, min_progress=0.5)
+    rising = [20.0, 24.0, 26.0, 27.0, 27.5, 27.8, 28.0, 28.1]
+    assert not any(stop.record(10 * (i + 1), p, 100) for i, p in enumerate(rising))    # still gaining 0.1+ dB
+    flat = PlateauStop(check_every=10, patience=3, min_gain_db=0.05, min_progress=0.5)
+    calls = [flat.record(10 * (i + 1), p, 100) for i, p in enumerate([20.0, 25.0, 26.0, 26.02, 26.01, 26.03, 26.0])]
+    assert calls == [False, False, False, False, False, True, True]   # at 60: the last three's 26.03 < 26.0 + 0.05
+    early = PlateauStop(check_every=10, patience=3, min_gain_db=0.05, min_progress=0.5)
+    assert not any(early.record(10 * (i + 1), 26.0, 1000) for i in range(20))   # before half of 1000 steps
+
+
+def test_fit_stops_on_a_plateau_of_held_back_pixels_it_never_trains_on():
+    uv, cov, dirs, tgt = synthetic_gbuffer(n=2, res=32)
+    before = cov.copy()
+    torch.manual_seed(0)
+    model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64)
+    stop = PlateauStop(hold_back_every=16, check_every=50, patience=4, min_gain_db=0.05, min_progress=0.1)
+    log = fit(model, uv, cov, dirs, tgt, steps=8000, config=TrainConfig(batch_patches=8, patch=8), progress=False,
+              num_threads=1, stop=stop)
+    assert log.stopped_by == "plateau" and 0.1 * 8000 <= log.steps < 8000, log.steps
+    assert len(log.held_back) == log.steps // 50 and log.held_back[-1][1] > 30.0, log.held_back[-3:]
+    assert np.array_equal(cov, before)                    # the caller's coverage is left as it was
+    held = stop.held.numpy()
+    assert held.size == int(np.ceil(before.sum() / 16)) and before.reshape(-1)[held].all()
+    # the held-back pixels never reach the loss: the same fit on a coverage without them trains the same model
+    kept = PlateauStop(hold_back_every=16, min_progress=2.0)            # scores, never stops
+    small = TrainConfig(batch_patches=8, patch=8)
+    torch.manual_seed(0)
+    a = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=False)
+    fit(a, uv, cov, dirs, tgt, steps=200, config=small, progress=False, num_threads=1, stop=kept)
+    masked = cov.copy()
+    masked.reshape(-1)[kept.held.numpy()] = False
+    torch.manual_seed(0)
+    b = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=False)
+    fit(b, uv, masked, dirs, tgt, steps=200, config=small, progress=False, num_threads=1)
+    assert all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), b.state_dict().values()))
+    with pytest.raises(BadInputError, match="one process"):
+        fit(model, uv, cov, dirs, tgt, steps=10, progress=False, stop=PlateauStop(), exchange=object())
 
 
 def test_fit_time_budget_and_bad_input():

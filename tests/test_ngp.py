@@ -306,7 +306,7 @@ def test_outer_cascades_render_as_a_dense_march_of_the_whole_network_cube(tmp_pa
     cams = Cameras(look_at(eye, target, up)[None].float(), 15.0, 15.0, 8.0, 6.0, 16, 12)
     reference = VolumeRenderer(whole, num_steps=2048).render(cams, 0)
     teacher = VolumeRenderer(field, num_steps=256, far_steps=512).render(cams, 0)
-    clipped = VolumeRenderer(field, num_steps=256).render(cams, 0)
+    clipped = VolumeRenderer(field, num_steps=256, far_steps=0).render(cams, 0)
 
     def psnr(a, b):
         return float(-10 * np.log10(max(float(np.mean((a - b) ** 2)), 1e-12)))

@@ -46,7 +46,8 @@ import torch
 from tqdm import tqdm
 
 from neuras_distill.config import TrainConfig
-from neuras_distill.errors import BadInputError
+from neuras_distill.errors import BadInputError, require
+from neuras_distill.neural.convergence import PlateauStop
 from neuras_distill.neural.data_parallel import GradientExchange
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.train_batches import TrainingPixels
@@ -64,7 +65,8 @@ class TrainLog:
         entries: [{"step", "seconds", "loss", "psnr" (batch, covered pixels), "lr", and when quantizing
             "perplexity", "used_fraction"}] at every ``log_every`` steps and at the last step.
         steps: optimisation steps done; seconds: wall time of the loop; steps_per_second.
-        stopped_by: "steps" or "time_budget".
+        stopped_by: "steps", "time_budget" or "plateau" (``stop``); held_back: [[step, PSNR in dB]] of the held-back
+            pixels at each check of ``stop``.
         vq_start_step: step at which quantization began (None without VQ).
         vq_stats: final quantizer stats (perplexity, used_fraction, ...), {} without VQ.
         exact_codes: quantization was skipped: no more texels were touched than ``model.quantize_above``.
@@ -78,6 +80,7 @@ class TrainLog:
     seconds: float = 0.0
     steps_per_second: float = 0.0
     stopped_by: str = "steps"
+    held_back: list = field(default_factory=list)
     vq_start_step: int | None = None
     vq_stats: dict = field(default_factory=dict)
     exact_codes: bool = False
@@ -96,7 +99,7 @@ class TrainLog:
 def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, config: TrainConfig = _TRAIN,
         time_budget_s: float | None = None, skybox=None, origins=None, sky_pixels=None, checkpoint=None,
         device: torch.device | str | None = None, exchange: GradientExchange | None = None, progress: bool = True,
-        log_every: int | None = None, num_threads: int | None = None) -> TrainLog:
+        log_every: int | None = None, num_threads: int | None = None, stop: PlateauStop | None = None) -> TrainLog:
     """Train ``model`` on teacher images.
 
     Args:
@@ -114,13 +117,13 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, c
             field shows a surface there that the mesh missed, which the skybox must not smear over the sky).
         checkpoint: optional :class:`neural.train_checkpoint.TrainCheckpoint`: the loop starts from its stored
             state when it has one (``TrainLog.resumed_from_step``) and saves its state when it is due.
-        device: where the model (and skybox) train; None: where the model is. The G-buffers and targets stay in
-            host memory: each step's batch is drawn there (same random numbers on every device) and sent over.
+        device: where the model (and skybox) train (None: where the model is); the arrays stay in host memory.
         exchange: this process's :class:`~neuras_distill.neural.data_parallel.GradientExchange` when ``fit`` runs
-            on several ranks at once (every rank with the same model, arrays and seed): each computes its share
-            of every batch and the gradients are summed; None: one process.
+            on several ranks at once (same model, arrays and seed): each computes its share of every batch.
         log_every: steps between log entries (default steps // 50); num_threads: torch intra-op threads during
             the loop (None: torch's setting; on a busy CPU 1 avoids OpenMP oversubscription: 108 vs 1.8 steps/s).
+        stop: optional :class:`~neuras_distill.neural.convergence.PlateauStop` (one process only): its pixels are
+            held back, and training stops when they stop improving (``TrainLog.stopped_by`` "plateau").
     Returns:
         :class:`TrainLog`. The model (and skybox) is left on the host in eval mode with untouched texels filled
         (on rank 0; the other ranks of an ``exchange`` return right after the loop, their model unquantized).
@@ -130,11 +133,11 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, c
     pixels = TrainingPixels.of(uv, coverage, dirs, targets, model.view_columns, skybox is not None, origins,
                                sky_pixels)
     device = torch.device(device) if device is not None else model.texture.data.device
-    models = _place(model, skybox, pixels, device)
+    models = _place(model, skybox, pixels, device, stop, exchange)
     batch_loss, opts = BatchLoss(model, skybox, pixels, config, device, exchange), Optimisers(model, skybox, config)
     gen = torch.Generator().manual_seed(config.seed)
     log_every = max(1, steps // 50) if log_every is None else max(1, int(log_every))
-    log, clock = TrainLog(), _Clock(exchange)
+    log, clock = TrainLog(held_back=stop.history if stop is not None else []), _Clock(exchange)
     stored = checkpoint.load() if checkpoint is not None else None
     step = 0 if stored is None else _restore(stored, model, skybox, models, opts, gen, log, clock)
     with _threads(num_threads), tqdm(total=steps, initial=step, file=sys.stderr, disable=not progress,
@@ -160,17 +163,17 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, c
                 bar.update(1)
                 if step % log_every == 0 or step == steps:
                     _log_step(log, bar, model, step, clock, l2, loss, opts.mlp_lr(decay))
+                if stop is not None and stop.plateau(step, steps, model, skybox, pixels, models):
+                    log.stopped_by = "plateau"
+                    break
                 if checkpoint is not None and step < steps and checkpoint.due():
                     checkpoint.save(_snapshot(step, clock.since_start(), model, skybox, models, opts, gen, log))
         finally:
             log.seconds, log.steps = clock.since_start(), step
             for m_ in models:
                 m_.record_touched = False
-    if exchange is not None:
-        for m_ in models:
-            exchange.union(m_.touched)
-        if exchange.rank != 0:
-            return log
+    if exchange is not None and not _gather_touched(models, exchange):
+        return log                                 # ranks other than 0 end here
     _finish(log, model, skybox, models, clock, config, pixels, exchange, checkpoint)
     return log
 
@@ -187,9 +190,20 @@ def _threads(num_threads: int | None):
         torch.set_num_threads(old)
 
 
-def _place(model: NeuralTextureModel, skybox, pixels: TrainingPixels, device: torch.device) -> list:
+def _gather_touched(models: list, exchange: GradientExchange) -> bool:
+    """OR every rank's touched texels into each of ``models``; True on rank 0."""
+    for m_ in models:
+        exchange.union(m_.touched)
+    return exchange.rank == 0
+
+
+def _place(model: NeuralTextureModel, skybox, pixels: TrainingPixels, device: torch.device,
+           stop: PlateauStop | None, exchange: GradientExchange | None) -> list:
     """Move the model (and skybox, and the camera centres) to ``device`` in training mode, recording touched
-    texels; returns the modules with an atlas: [model] or [model, skybox.atlas]."""
+    texels, and hold back ``stop``'s pixels; returns the modules with an atlas: [model] or [model, skybox.atlas]."""
+    if stop is not None:
+        require(exchange is None, "fit: the plateau stop runs in one process (with --nproc, configure --steps)")
+        stop.hold_back(pixels)
     model.to(device)
     models = [model]
     if skybox is not None:
@@ -290,7 +304,7 @@ def _snapshot(step: int, elapsed: float, model, skybox, models, opts: Optimisers
     return {"step": step, "elapsed": elapsed, "model": model.state_dict(),
             "skybox": skybox.state_dict() if skybox is not None else None,
             "touched": [m.touched.clone() for m in models], **opts.state_dict(), "generator": gen.get_state(),
-            "entries": list(log.entries), "stopped_by": log.stopped_by}
+            "entries": list(log.entries), "stopped_by": log.stopped_by, "held_back": list(log.held_back)}
 
 
 def _restore(state: dict, model, skybox, models, opts: Optimisers, gen, log: TrainLog, clock: _Clock) -> int:
@@ -303,6 +317,7 @@ def _restore(state: dict, model, skybox, models, opts: Optimisers, gen, log: Tra
     opts.load_state_dict(state)
     gen.set_state(state["generator"])
     log.entries = list(state["entries"])
+    log.held_back[:] = [tuple(h) for h in state.get("held_back", [])]     # the plateau stop's own history
     log.resumed_from_step = int(state["step"])
     clock.resume(float(state["elapsed"]))
     return int(state["step"])

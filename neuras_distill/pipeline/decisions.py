@@ -221,49 +221,49 @@ def training_budget_resolution(samples: int, uv_area: float, *, per_texel: int =
     return int(max(lo, multiple * np.ceil(exact / multiple)))
 
 
-#: Share of the rest of the run (teacher renders and held-out evaluation, both volume rendering) that training
-#: may take. The whole of it, not half: the street (the only fixture far short of its samples per texel at
-#: half, 6765 of 19852 steps in 132 s) scored 29.73 dB with half and 30.31 with the whole (same stored stages;
-#: FLIP 0.0925 -> 0.0804, interior 29.84 -> 30.92); the demo and the from-ngp ball reach their samples per
-#: texel within either budget. The city preset keeps half (``train.budget_share``).
-TRAIN_TIME_FRACTION = 1.0
-
-
-def training_share(configured: float) -> float:
-    """Training's share of the run's volume rendering and surface extraction: ``train.budget_share``, or
-    :data:`TRAIN_TIME_FRACTION` when that is 0."""
-    return float(configured) if configured > 0 else TRAIN_TIME_FRACTION
-
-
 #: Fewest optimisation steps of an automatic plan (the MLP needs some steps whatever the atlas size).
 MIN_TRAIN_STEPS = 1000
-#: Training samples per used texel an automatic plan aims for within its time budget (``SAMPLES_PER_TEXEL``
-#: is the least the atlas size allows). More kept paying off: on the instant-nsr-pl fixture at 384^2,
+#: Training samples per used texel an automatic plan aims for (the texel rule; ``SAMPLES_PER_TEXEL`` is the
+#: least the atlas size allows). More kept paying off: on the instant-nsr-pl fixture at 384^2,
 #: 1500 / 3000 / 5000 steps (about 330 / 660 / 1100 samples per used texel) gave ~29 / 30.1 / 30.7 dB.
 #: 2048, not 1024 (with exact codes for small atlases, same stored stages, held out): demo 38.33 ->
-#: 38.83 dB (6428 steps, the budget's), from-ngp ball 39.33 -> 39.54 (interior 37.04 -> 37.47), NeuS 37.63 ->
-#: 38.00, instant-nsr-pl 34.10 -> 34.42 (11787 steps, the budget's); the gradient ball and the street were
-#: already at their budgets. The time budget still caps it (the demo's run +11 s, NeuS +80 s).
+#: 38.83 dB, from-ngp ball 39.33 -> 39.54 (interior 37.04 -> 37.47), NeuS 37.63 -> 38.00, instant-nsr-pl
+#: 34.10 -> 34.42.
 TARGET_SAMPLES_PER_TEXEL = 2048
 
+#: The most seconds an automatic plan trains when neither ``train.time_budget_s`` nor ``--time-budget`` says
+#: otherwise: a safety net, not the rule. Training stops before it at the texel rule
+#: (:data:`TARGET_SAMPLES_PER_TEXEL`) or on a plateau of the held-back pixels (``neural.convergence``). Before,
+#: training's budget was the time the run spent volume rendering, so a faster GPU trained less: on an H200 the
+#: street ran 18,937 of the 36,049 steps its texel rule asks for in 76 s.
+TRAIN_CAP_S = 600.0
+#: The plateau rule (``neural.convergence.PlateauStop``): one training pixel in HOLD_BACK_EVERY is held back;
+#: they are scored every ``steps // PLATEAU_CHECKS`` steps, and training stops once past PLATEAU_MIN_PROGRESS of
+#: its steps when the best of the last PLATEAU_PATIENCE scores is less than PLATEAU_MIN_GAIN_DB above the best
+#: before them.
+HOLD_BACK_EVERY = 64
+PLATEAU_CHECKS = 40
+PLATEAU_PATIENCE = 4
+PLATEAU_MIN_GAIN_DB = 0.05
+PLATEAU_MIN_PROGRESS = 0.5
 
-#: Least seconds an automatic plan gives training on the CPU, and on a GPU. On a GPU the field's volume rendering
-#: is fast, so the share above shrinks to nothing while the CPU-bound stages (mesh cleanup, decimation, UV
-#: unwrap) take as long as anywhere: measured on an H200, the street's budget came to 28 s (1948 steps against
-#: 17969 needed; 27.88 dB at 1920x1080 where the CPU's 86 s gave 29.93 dB at 960x540) and the from-ngp ball's
-#: to the 20 s floor while its geometry stage took 203 s.
-TRAIN_FLOOR_S = 20.0
-GPU_TRAIN_FLOOR_S = 60.0
+
+def run_budget_left(budget_s: float, elapsed_s: float, eval_seconds: float) -> float:
+    """Seconds a run budget of ``budget_s`` leaves training after ``elapsed_s`` spent and ``eval_seconds`` kept
+    for the evaluation; BadInputError (naming a budget that would do) when nothing is left."""
+    from ..errors import require
+
+    left = budget_s - elapsed_s - eval_seconds
+    require(left > 0, f"--time-budget {budget_s:g}: the stages before training took {elapsed_s:.0f} s and the "
+                      f"evaluation needs about {eval_seconds:.0f} s, which leaves no time to train; pass "
+                      f"--time-budget {1.5 * (elapsed_s + eval_seconds) + 60:.0f} or more")
+    return float(left)
 
 
-def training_time_budget(teacher_seconds: float, teacher_pixels: int, eval_pixels: int,
-                         fraction: float = TRAIN_TIME_FRACTION, floor_s: float = TRAIN_FLOOR_S) -> float:
-    """Seconds training may take: ``fraction`` of the volume rendering the run does anyway, the teacher's
-    (measured) plus the held-out evaluation's (estimated from the teacher's seconds per pixel; ``eval_pixels``
-    counts every field pixel the evaluation renders), and at least ``floor_s`` (``GPU_TRAIN_FLOOR_S`` when
-    training runs on a GPU)."""
-    per_pixel = teacher_seconds / max(teacher_pixels, 1)
-    return float(max(floor_s, fraction * (teacher_seconds + per_pixel * eval_pixels)))
+def evaluation_seconds(teacher_seconds: float, teacher_pixels: int, eval_pixels: int) -> float:
+    """The held-out evaluation's volume rendering in seconds, estimated from the teacher's seconds per pixel
+    (``eval_pixels`` counts every field pixel the evaluation renders)."""
+    return float(teacher_seconds) / max(teacher_pixels, 1) * eval_pixels
 
 
 def probe_training_speed(texture: TextureConfig, train: TrainConfig, steps: int = 60, side: int = 256,

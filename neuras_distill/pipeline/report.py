@@ -160,6 +160,8 @@ def summary_rows(rep: dict) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
                          f"x{rep['feature_dim']}, "
                         f"{rep['codebook_size']} codes"),
         ("bundle", "", _mb(rep.get("bundle_bytes"))),
+        *([("training stopped by", "", f"{stop['rule']}: {stop['why']}")] if (stop := rep.get("training_stop"))
+          else []),
     ]
     return ("", "before (field, volume rendering)", "after (bundle, OpenGL)"), rows
 

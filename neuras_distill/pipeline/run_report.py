@@ -82,6 +82,29 @@ def field_summary(ctx: RunContext) -> dict:
             "notes": list(getattr(field, "notes", []) or [])}
 
 
+def training_stop(plan: TrainingPlan, log: dict) -> dict:
+    """Which rule stopped training: {"rule": "configured steps" | "texel rule" | "plateau" | "time budget",
+    "steps", "why"} (``plan``: the run's ``TrainingPlan``; ``log``: ``TrainLog.as_dict()``)."""
+    steps, stopped = int(log["steps"]), log.get("stopped_by", "steps")
+    if stopped == "plateau":
+        (step, best) = max(log["held_back"], key=lambda h: h[1])
+        return {"rule": "plateau", "steps": steps,
+                "why": f"the held-back training pixels stopped improving (best {best:.2f} dB at step {step}; "
+                       f"{steps} of the {plan.steps} planned steps ran)"}
+    if stopped == "time_budget":
+        return {"rule": "time budget", "steps": steps,
+                "why": f"the time budget ran out after {log['seconds']:.0f} s, at step {steps} of {plan.steps}"}
+    if plan.configured_steps:
+        return {"rule": "configured steps", "steps": steps, "why": f"the {steps} configured steps ran"}
+    if plan.needed_steps is not None and plan.needed_steps > plan.steps:
+        return {"rule": "time budget", "steps": steps,
+                "why": f"the {plan.time_budget_s:.0f} s cap affords {plan.steps} of the {plan.needed_steps} steps "
+                       "the texel rule asks for"}
+    samples = steps * plan.samples_per_step / max(plan.used_texels or 1, 1)
+    return {"rule": "texel rule", "steps": steps,
+            "why": f"{steps} steps gave every used texel about {samples:.0f} training samples"}
+
+
 def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, inputs: ShaderInputs,
                  plan: TrainingPlan, training: TrainingViews, backdrop: Backdrop, distilled: DistilledModel,
                  bundle: Bundle,
@@ -148,6 +171,7 @@ def build_report(ctx: RunContext, views: CameraSplit, geometry: GeometryResult, 
         "plain_texture": ev.plain,
         "silhouette_blend": ev.silhouette_blend,
         "training_plan": plan.to_json(),
+        "training_stop": training_stop(plan, log),
         "stability": stability,
         "train_log": list(log["entries"]),
         "train_summary": {k: v for k, v in log.items() if k != "entries"},

@@ -160,9 +160,10 @@ class TrainedModel:
 
 @dataclass
 class TrainingPlan:
-    """How long training runs. Known after the teacher: ``time_budget_s`` (None: configured steps run to the
-    end), ``samples_per_step`` (pixels per batch), measured ``steps_per_second`` (None with configured steps),
-    ``configured_steps`` and ``max_steps`` (what the budget affords). Fixed after the geometry
+    """How long training runs. Known after the teacher: ``time_budget_s`` (training's cap in seconds; None:
+    configured steps run to the end), ``samples_per_step`` (pixels per batch), measured ``steps_per_second``
+    (None with configured steps), ``configured_steps``, ``max_steps`` (what the cap affords) and
+    ``eval_seconds`` (the held-out evaluation's estimate, which a run budget keeps free). Fixed after the geometry
     (``stages.geometry.fix_steps``): ``steps``, ``needed_steps`` (for the target samples per used texel),
     ``used_texels`` and the ``reason`` the report gives."""
 
@@ -175,6 +176,7 @@ class TrainingPlan:
     needed_steps: int | None = None
     used_texels: int | None = None
     reason: str | None = None
+    eval_seconds: float | None = None
 
     def to_json(self) -> dict:
         return asdict(self)

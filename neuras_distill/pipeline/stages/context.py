@@ -46,6 +46,11 @@ class StageClock:
         self.seconds: dict[str, float] = {}
         self.peak_rss_mb: dict[str, float] = {}
         self._name, self._t0 = "", 0.0
+        self._started = time.perf_counter()
+
+    def elapsed(self) -> float:
+        """Seconds since the run's stages began (what a run budget has spent)."""
+        return time.perf_counter() - self._started
 
     def start(self, name: str, what: str) -> None:
         self.log(f"[{STAGE_NAMES.index(name) + 1}/{len(STAGE_NAMES)}] {name}: {what}")

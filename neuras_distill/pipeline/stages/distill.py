@@ -4,9 +4,11 @@ renders, resuming from the last training checkpoint of a killed run."""
 from __future__ import annotations
 
 from ...geometry.unwrap import atlas_shape
+from ...neural.convergence import PlateauStop
 from ...neural.model import NeuralTextureModel
 from ...neural.train import fit
 from ...neural.train_checkpoint import TrainCheckpoint
+from .. import decisions
 from ..cache import digest
 from ..stage_results import (
     Backdrop,
@@ -18,6 +20,27 @@ from ..stage_results import (
     TrainingViews,
 )
 from .context import RunContext, settings
+
+
+def training_seconds(ctx: RunContext, plan: TrainingPlan) -> float | None:
+    """Training's time cap: the plan's, or less when the run's budget (``train.run_budget_s``) has less left
+    once the evaluation's estimate is kept free (refused when nothing is left)."""
+    budget = ctx.cfg.train.run_budget_s
+    if not budget:
+        return plan.time_budget_s
+    left = decisions.run_budget_left(budget, ctx.clock.elapsed(), plan.eval_seconds or 0.0)
+    return min(plan.time_budget_s or left, left)
+
+
+def plateau_stop(ctx: RunContext, plan: TrainingPlan) -> PlateauStop | None:
+    """The plateau rule of an automatic plan trained in one process (``decisions.HOLD_BACK_EVERY`` and the
+    ``PLATEAU_*`` figures); None for configured steps and for ``--nproc`` (the ranks would have to agree)."""
+    if plan.configured_steps or ctx.pool is not None:
+        return None
+    return PlateauStop(hold_back_every=decisions.HOLD_BACK_EVERY,
+                       check_every=max(25, (plan.steps or 0) // decisions.PLATEAU_CHECKS),
+                       patience=decisions.PLATEAU_PATIENCE, min_gain_db=decisions.PLATEAU_MIN_GAIN_DB,
+                       min_progress=decisions.PLATEAU_MIN_PROGRESS, seed=ctx.cfg.train.seed)
 
 
 def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, training: TrainingViews,
@@ -49,8 +72,9 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
         gb = training.gbuffer
         train_fn = fit if ctx.pool is None else ctx.pool.fit      # --nproc N: data-parallel over the workers
         log = train_fn(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, config=cfg.train,
-                       time_budget_s=plan.time_budget_s, skybox=skybox, origins=backdrop.sky_origins,
-                       sky_pixels=backdrop.sky_pixels, checkpoint=checkpoint, device=ctx.device, progress=ctx.progress)
+                       time_budget_s=training_seconds(ctx, plan), skybox=skybox, origins=backdrop.sky_origins,
+                       sky_pixels=backdrop.sky_pixels, checkpoint=checkpoint, device=ctx.device, progress=ctx.progress,
+                       stop=plateau_stop(ctx, plan))
         if log.resumed_from_step:
             ctx.log(f"distill: continued from the checkpoint at step {log.resumed_from_step}")
         return TrainedModel.of(model, skybox, log.as_dict())

@@ -4,8 +4,6 @@ inputs, training steps)."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from ...errors import require
@@ -27,7 +25,6 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
                                 "culling, UV unwrap")
     enclose = choices.fringe_shell(g.enclose_fringe, teacher.opacities, ctx.background, ctx.decisions)
     surface = extract(ctx, views, teacher, enclose)
-    plan = with_surface_time(ctx, plan, surface.mesh.stats.get("seconds_surface"))
     auto_side = ctx.cfg.texture.resolution == 0
     side, density = choose_atlas_side(ctx, surface, views, plan) if auto_side else (ctx.cfg.texture.resolution, {})
     weighted = ctx.cfg.texture.view_weighted_texels and surface.layout is None
@@ -161,19 +158,6 @@ def _record_surface_source(ctx: RunContext, stats: dict) -> None:
                                 f"training pixels but the fused depths missed more ({fused:.1f}%)", **measured)
 
 
-def with_surface_time(ctx: RunContext, plan: TrainingPlan, seconds: float | None) -> TrainingPlan:
-    """An automatic plan's time budget grown by its share (``decisions.training_share``) of the seconds the surface
-    extraction took (``seconds_surface``, stored with the surface, so a resumed run plans the same), and its
-    most steps with it: training's share is then one of the whole run's volume rendering *and* meshing. A
-    configured budget or step count is left alone. The gradient ball's budget was 28 s (2607 steps of the 6224
-    its atlas asks for) while its surface took 28 s and the run 184 s."""
-    if plan.configured_steps or ctx.cfg.train.time_budget_s or not seconds or not plan.steps_per_second:
-        return plan
-    budget = float(plan.time_budget_s) + decisions.training_share(ctx.cfg.train.budget_share) * float(seconds)
-    return dataclasses.replace(plan, time_budget_s=budget,
-                               max_steps=max(decisions.MIN_TRAIN_STEPS, int(budget * plan.steps_per_second)))
-
-
 def used_texels(mesh) -> float:
     """Texels the unwrapped ``mesh``'s charts cover in its atlas (all its pages)."""
     height, width, _ = atlas_shape(mesh.stats)
@@ -227,11 +211,11 @@ def fix_steps(ctx: RunContext, plan: TrainingPlan, mesh) -> TrainingPlan:
     if plan.configured_steps:
         why = f"{steps} steps as configured ({needed} would give {target} samples per used texel)"
     elif needed > plan.max_steps:
-        why = (f"{steps} steps: the {plan.time_budget_s:.0f} s budget (at {plan.steps_per_second:.0f} steps/s) "
+        why = (f"{steps} steps: the {plan.time_budget_s:.0f} s cap (at {plan.steps_per_second:.0f} steps/s) "
                f"affords fewer than the {needed} that give {target} samples to each of {int(used)} used texels")
     else:
-        why = (f"{steps} steps give {target} samples to each of {int(used)} used texels (at least "
-               f"{decisions.MIN_TRAIN_STEPS}); the time budget would allow {plan.max_steps}")
+        why = (f"at most {steps} steps: they give {target} samples to each of {int(used)} used texels (at least "
+               f"{decisions.MIN_TRAIN_STEPS}); training stops sooner if the held-back pixels stop improving")
     ctx.decisions.leave_out("training beyond the atlas's needs", why, steps=int(steps), needed_steps=int(needed))
     plan.steps, plan.needed_steps, plan.used_texels, plan.reason = int(steps), int(needed), int(used), why
     return plan

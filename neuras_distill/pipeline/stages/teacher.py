@@ -102,16 +102,17 @@ def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer,
     require(bool(np.isfinite(result.images).all()), "the field renders NaN or Inf colours; check its parameters")
     ctx.clock.done(views=len(train), key=key, render_seconds=result.seconds)
     plan_key = digest("plan", key, views.test.to_json(), settings(cfg.train, ("checkpoint_every_s",)),
-                      settings(cfg.texture), settings(cfg.eval), decisions.TRAIN_TIME_FRACTION)
+                      settings(cfg.texture), settings(cfg.eval), decisions.TRAIN_CAP_S)
     plan = ctx.cached("plan", plan_key, lambda: plan_training(ctx, result.seconds, views),
                       TrainingPlan.save, TrainingPlan.load)
     return teacher, result, plan
 
 
 def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -> TrainingPlan:
-    """The training plan's limits, known once the teacher has run: the time budget (configured, or a share of
-    the run's volume rendering, ``decisions.training_time_budget``), the measured steps per second and the
-    most steps (configured, or what the budget affords). Steps are fixed after the geometry."""
+    """The training plan's limits, known once the teacher has run: the held-out evaluation's estimated seconds,
+    training's time cap (``train.time_budget_s``; else what ``train.run_budget_s`` leaves after the time spent so
+    far and the evaluation; else ``decisions.TRAIN_CAP_S``), the measured steps per second and the most steps
+    the cap affords (configured steps: those). Steps are fixed after the geometry."""
     cfg, train, test = ctx.cfg, views.train, views.test
     tr = cfg.train
     samples_per_step = tr.batch_patches * tr.patch ** 2
@@ -120,13 +121,16 @@ def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -
     curve = (2 * cfg.teacher.num_steps + sum(cfg.eval.runtime_steps) + cfg.teacher.num_steps) / cfg.teacher.num_steps
     shifts = 2 * len(getattr(ctx.field, "lane_shifts", None) or [])
     eval_pixels = int((len(test) + curve + shifts) * test.width * test.height)
-    floor = decisions.GPU_TRAIN_FLOOR_S if ctx.device.type == "cuda" else decisions.TRAIN_FLOOR_S
-    budget = tr.time_budget_s or decisions.training_time_budget(teacher_seconds, len(train) * train.width * train.height,
-                                                                 eval_pixels, floor_s=floor,
-                                                                 fraction=decisions.training_share(tr.budget_share))
+    eval_seconds = decisions.evaluation_seconds(teacher_seconds, len(train) * train.width * train.height, eval_pixels)
+    cap = tr.time_budget_s or None
+    if tr.run_budget_s:
+        left = decisions.run_budget_left(tr.run_budget_s, ctx.clock.elapsed(), eval_seconds)
+        cap = min(cap or left, left)
     if tr.steps:                   # configured steps run to the end unless a time budget is configured too
-        return TrainingPlan(time_budget_s=tr.time_budget_s or None, samples_per_step=samples_per_step,
-                            steps_per_second=None, configured_steps=tr.steps, max_steps=tr.steps)
+        return TrainingPlan(time_budget_s=cap, samples_per_step=samples_per_step, steps_per_second=None,
+                            configured_steps=tr.steps, max_steps=tr.steps, eval_seconds=eval_seconds)
+    cap = cap or decisions.TRAIN_CAP_S
     speed = decisions.probe_training_speed(cfg.texture, tr, device=ctx.device)
-    return TrainingPlan(time_budget_s=float(budget), samples_per_step=samples_per_step, steps_per_second=speed,
-                        configured_steps=None, max_steps=max(decisions.MIN_TRAIN_STEPS, int(budget * speed)))
+    return TrainingPlan(time_budget_s=float(cap), samples_per_step=samples_per_step, steps_per_second=speed,
+                        configured_steps=None, max_steps=max(decisions.MIN_TRAIN_STEPS, int(cap * speed)),
+                        eval_seconds=eval_seconds)
