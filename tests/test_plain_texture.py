@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from neuras_distill.bake.plain_texture import plain_fragment_shader, plain_texture, texel_view_inputs
+from neuras_distill.bake.glsl import plain_fragment_shader
+from neuras_distill.bake.plain_texture import plain_texture, texel_view_inputs
 from neuras_distill.neural.texture import bilinear_corners
 from test_bake import VERT, draw_fullscreen, gl_context, make_model, quad_uvs
 

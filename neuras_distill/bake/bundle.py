@@ -92,7 +92,7 @@ class Bundle:
         mesh: MeshData with uvs; its ``core_faces`` (None: one layer) is what the manifest's ``core_faces`` records.
         textures: {"u_index": uint16 (H, W), "u_codebook": float32 (K, C4, 4)}.
         fragment_shader: GLSL source (``#version 400 core`` from ``bake/glsl.py``; a plain-texture bundle's,
-            ``bake/plain_texture.py``, is ``#version 330 core``).
+            ``glsl.plain_fragment_shader``, is ``#version 330 core``).
         background_color: (3,) float32 clear colour.
         manifest: dict (format, sizes, model settings, ...; ``save`` adds file hashes).
         vertex_shader: optional GLSL source saved as shader.vert (the playback stage owns it).

@@ -1,6 +1,7 @@
 """Generation of the fragment shader that plays a :class:`NeuralTextureModel` (GLSL 400 core).
 
-Owns: :func:`generate_fragment_shader`. The shader reproduces the torch forward pass:
+Owns: :func:`generate_fragment_shader` (the neural shader) and :func:`plain_fragment_shader` (the plain-texture
+baseline's). The neural shader reproduces the torch forward pass:
 
 - bilinear corners exactly as ``neural/texture.py`` (x = u*W - 0.5, floor, clamped corners, weights
   (1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy), blended in the order c00, c10, c01, c11;
@@ -303,3 +304,40 @@ def to_glsl_es(source: str) -> str:
         rest = rest.replace("textureGather(", "neurasGather(")
         head.append(GLSL_ES_GATHER_ARRAY if arrays else GLSL_ES_GATHER)
     return "\n".join(head) + sep + rest
+
+
+def plain_fragment_shader(width: int, height: int, pages: int = 1) -> str:
+    """GLSL 330 fragment shader playing an RGB float texture ``u_rgb`` (H x W x 3, texelFetch only) with the
+    bilinear-corner arithmetic of ``neural.texture.bilinear_corners``; with ``pages`` P > 1 (H = P * W) a
+    ``sampler2DArray`` of P layers of W x W, v stacked as there."""
+    if pages > 1:
+        side = height // pages
+        lookup = [*page_lines("v_uv", pages, "    "),
+                  f"    vec2 xy = vec2(v_uv.x, vp - layer) * vec2({width}.0, {side}.0) - 0.5;"]
+        sampler, height, fetch = "sampler2DArray", side, "texelFetch(u_rgb, ivec3({}, int(layer)), 0).rgb"
+    else:
+        lookup = [f"    vec2 xy = v_uv * vec2({width}.0, {height}.0) - 0.5;"]
+        sampler, fetch = "sampler2D", "texelFetch(u_rgb, {}, 0).rgb"
+    return "\n".join([
+        "#version 330 core",
+        "// plain RGB texture, " + (f"{pages} pages of " if pages > 1 else "")
+        + f"{width}x{height}, bilinear (the baseline of the neural shader)",
+        "in vec2 v_uv;",
+        f"uniform {sampler} u_rgb;",
+        "out vec4 f_color;",
+        "void main() {",
+        *lookup,
+        "    vec2 b0 = floor(xy);",
+        "    vec2 f = xy - b0;",
+        "    vec2 g = 1.0 - f;",
+        f"    ivec2 hi = ivec2({width - 1}, {height - 1});",
+        "    ivec2 c0 = clamp(ivec2(b0), ivec2(0), hi);",
+        "    ivec2 c1 = clamp(ivec2(b0) + 1, ivec2(0), hi);",
+        f"    vec3 rgb = g.x * g.y * {fetch.format('c0')}"
+        f" + f.x * g.y * {fetch.format('ivec2(c1.x, c0.y)')}"
+        f" + g.x * f.y * {fetch.format('ivec2(c0.x, c1.y)')}"
+        f" + f.x * f.y * {fetch.format('c1')};",
+        "    f_color = vec4(rgb, 1.0);",
+        "}",
+        "",
+    ])

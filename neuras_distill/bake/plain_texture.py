@@ -1,8 +1,8 @@
 """The plain RGB texture of a trained model: what the bundle would be without its neural shader.
 
 Owns: :func:`texel_view_inputs`, :func:`plain_texture`, :func:`chart_mask`, :func:`pad_gutters`,
-:func:`plain_texture_rgb8` (what a run stores as the bundle's ``plain_rgb.png``), :func:`plain_fragment_shader`
-and :func:`plain_bundle`.
+:func:`plain_texture_rgb8` (what a run stores as the bundle's ``plain_rgb.png``) and :func:`plain_bundle` (its
+shader is ``glsl.plain_fragment_shader``).
 
 Each texel's colour is the model's own output for that texel, evaluated once: the texel's (quantized) feature
 through the shader of the layer that texel belongs to, with the mean view input the training views saw it
@@ -26,7 +26,7 @@ import torch
 from scipy import ndimage
 
 from .bundle import Bundle, atlas_pages
-from .glsl import page_lines
+from .glsl import plain_fragment_shader
 
 
 def _nearest_texel(uv: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -116,43 +116,6 @@ def plain_texture_rgb8(model, mesh, uv, coverage, view_inputs) -> np.ndarray:
     return np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
 
 
-def plain_fragment_shader(width: int, height: int, pages: int = 1) -> str:
-    """GLSL 330 fragment shader playing an RGB float texture ``u_rgb`` (H x W x 3, texelFetch only) with the
-    bilinear-corner arithmetic of ``neural.texture.bilinear_corners``; with ``pages`` P > 1 (H = P * W) a
-    ``sampler2DArray`` of P layers of W x W, v stacked as there."""
-    if pages > 1:
-        side = height // pages
-        lookup = [*page_lines("v_uv", pages, "    "),
-                  f"    vec2 xy = vec2(v_uv.x, vp - layer) * vec2({width}.0, {side}.0) - 0.5;"]
-        sampler, height, fetch = "sampler2DArray", side, "texelFetch(u_rgb, ivec3({}, int(layer)), 0).rgb"
-    else:
-        lookup = [f"    vec2 xy = v_uv * vec2({width}.0, {height}.0) - 0.5;"]
-        sampler, fetch = "sampler2D", "texelFetch(u_rgb, {}, 0).rgb"
-    return "\n".join([
-        "#version 330 core",
-        "// plain RGB texture, " + (f"{pages} pages of " if pages > 1 else "")
-        + f"{width}x{height}, bilinear (the baseline of the neural shader)",
-        "in vec2 v_uv;",
-        f"uniform {sampler} u_rgb;",
-        "out vec4 f_color;",
-        "void main() {",
-        *lookup,
-        "    vec2 b0 = floor(xy);",
-        "    vec2 f = xy - b0;",
-        "    vec2 g = 1.0 - f;",
-        f"    ivec2 hi = ivec2({width - 1}, {height - 1});",
-        "    ivec2 c0 = clamp(ivec2(b0), ivec2(0), hi);",
-        "    ivec2 c1 = clamp(ivec2(b0) + 1, ivec2(0), hi);",
-        f"    vec3 rgb = g.x * g.y * {fetch.format('c0')}"
-        f" + f.x * g.y * {fetch.format('ivec2(c1.x, c0.y)')}"
-        f" + g.x * f.y * {fetch.format('ivec2(c0.x, c1.y)')}"
-        f" + f.x * f.y * {fetch.format('c1')};",
-        "    f_color = vec4(rgb, 1.0);",
-        "}",
-        "",
-    ])
-
-
 def plain_bundle(bundle: Bundle, rgb: np.ndarray) -> Bundle:
     """A bundle with ``bundle``'s mesh, background and origin that plays the plain texture ``rgb`` (H, W, 3)
     (no skybox pass: the sky is not a texture on the mesh)."""
@@ -166,4 +129,4 @@ def plain_bundle(bundle: Bundle, rgb: np.ndarray) -> Bundle:
 
 
 __all__ = ["texel_view_inputs", "plain_texture", "chart_mask", "pad_gutters", "plain_texture_rgb8",
-           "plain_fragment_shader", "plain_bundle"]
+           "plain_bundle"]
