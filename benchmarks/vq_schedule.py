@@ -26,7 +26,7 @@ import torch
 
 def prepare(args):
     """(field, train cameras, held-out cameras, teacher images, held-out images, background)."""
-    from neuras_distill.pipeline import decisions, evaluate
+    from neuras_distill.pipeline import rules, evaluate
     from neuras_distill.registry import load_field
     from neuras_distill.render.volume import VolumeRenderer
 
@@ -40,7 +40,7 @@ def prepare(args):
     teacher = VolumeRenderer(field, num_steps=args.teacher_steps)
     train_images = np.stack(evaluate.render_field_timed(teacher, train)[0]).astype(np.float32)
     test_images = np.stack(evaluate.render_field_timed(teacher, test)[0]).astype(np.float32)
-    return field, train, test, train_images, test_images, decisions.background_color(field).numpy()
+    return field, train, test, train_images, test_images, rules.background_color(field).numpy()
 
 
 def gbuffers(field, train, test, side: int, args):

@@ -128,7 +128,7 @@ class TextureConfig:
 
     resolution: int = 0
     """Side of the square feature atlas in texels. 0 (default): chosen per run from texel density, one texel per
-    2 x 2 pixels of the training view that sees it largest (``pipeline.decisions.texel_density_resolution``),
+    2 x 2 pixels of the training view that sees it largest (``pipeline.rules.texel_density_resolution``),
     limited by the training budget (256 samples per used texel) and ``max_resolution``; reported in
     ``left_out``. A fixed side overrides it."""
     max_resolution: int = 2048
@@ -176,7 +176,7 @@ class TextureConfig:
     """Mean colour change (0..1) over view directions below which "auto" drops the view direction."""
     normal_smoothing: int = 20
     """Rounds of one-ring averaging of the shading normals when the shader takes the facing cosine (a mesh with a
-    fringe shell; ``MeshData.normal_smoothing``) and the normals are rough (``decisions.ROUGH_NORMALS_DEG``): a
+    fringe shell; ``MeshData.normal_smoothing``) and the normals are rough (``rules.ROUGH_NORMALS_DEG``): a
     fringe fades with the surface's large-scale orientation, while a surface fused from a trained NeRF's depths
     is bumpy (docs/decisions.md "Smoothed shading normals"). 0: never."""
     soft_silhouettes: Mode = "auto"
@@ -220,12 +220,12 @@ class TrainConfig:
 
     steps: int = 0
     """Optimisation steps. 0 (default): planned per run from what the scene needs, 2048 training samples per
-    used texel of the atlas (``pipeline.decisions.training_steps``), stopped earlier when held-back training
+    used texel of the atlas (``pipeline.rules.training_steps``), stopped earlier when held-back training
     pixels stop improving (``neural.convergence``) or at the time budget; the report says which rule stopped it
     (``training_stop``). Configured steps run to the end unless a time budget is set too."""
     time_budget_s: float = 0.0
     """Training's own cap in seconds. 0 (default): what ``run_budget_s`` leaves it, or
-    ``pipeline.decisions.TRAIN_CAP_S`` (600 s) without one."""
+    ``pipeline.rules.TRAIN_CAP_S`` (600 s) without one."""
     run_budget_s: float = 0.0
     """The whole run's cap in seconds (``--time-budget``): training gets what the stages before it leave, less
     the evaluation's estimated time. 0 (default): no cap on the run."""
@@ -261,7 +261,7 @@ class EvalConfig:
     """Width of held-out frames for PSNR/SSIM and FPS (height follows the cameras' aspect ratio); 0: the
     cameras' own size."""
     max_upscale: float = 2.0
-    """Held-out frames are at most this many times the cameras' own width (``decisions.MAX_UPSCALE``); 0: no
+    """Held-out frames are at most this many times the cameras' own width (``rules.MAX_UPSCALE``); 0: no
     cap, e.g. to time a dataset of small images at a display's 1920 pixels."""
     fps_frames: int = 30
     """Timed bundle frames (after warm-up) for the median frame time."""

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from neuras_distill.geometry.mesh import MeshData
-from neuras_distill.pipeline.decisions import texel_density_resolution
+from neuras_distill.pipeline.rules import texel_density_resolution
 from neuras_distill.render.cameras import Cameras, look_at
 
 
@@ -46,7 +46,7 @@ def test_faces_behind_or_turned_away_count_nothing():
 
 
 def test_training_budget_limits_the_atlas():
-    from neuras_distill.pipeline.decisions import training_budget_resolution
+    from neuras_distill.pipeline.rules import training_budget_resolution
 
     # 1,048,576 samples at 64 per texel feed 16,384 texels: 128^2 on a full atlas, 256^2 when a quarter is used
     assert training_budget_resolution(1 << 20, 1.0, per_texel=64, multiple=1, lo=1) == 128
@@ -59,7 +59,7 @@ def test_a_run_budget_leaves_training_what_the_earlier_stages_and_the_evaluation
     """--time-budget caps the whole run: training gets the budget less the time spent and the evaluation's
     estimate; a budget already spent is refused with one line naming a budget that would do."""
     from neuras_distill.errors import BadInputError
-    from neuras_distill.pipeline.decisions import evaluation_seconds, run_budget_left
+    from neuras_distill.pipeline.rules import evaluation_seconds, run_budget_left
 
     assert evaluation_seconds(60.0, 10**6, 2 * 10**5) == pytest.approx(12.0)     # the teacher's seconds per pixel
     assert run_budget_left(300.0, 100.0, 40.0) == 160.0

@@ -134,7 +134,7 @@ def test_the_report_names_each_side_and_flags_software_gl_beside_a_gpu(monkeypat
 
 def test_the_training_speed_probe_follows_the_training_device():
     """The speed probe trains where the run trains (it measured the host's speed before)."""
-    from neuras_distill.pipeline import decisions
-    speed = decisions.probe_training_speed(TextureConfig(feature_dim=4, hidden=8, num_layers=2),
+    from neuras_distill.pipeline import rules
+    speed = rules.probe_training_speed(TextureConfig(feature_dim=4, hidden=8, num_layers=2),
                                            TrainConfig(batch_patches=4, patch=8), steps=5, side=32, device="cpu")
     assert speed > 0

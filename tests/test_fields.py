@@ -198,7 +198,7 @@ def test_matte_bunny_has_no_view_dependence_and_the_decision_drops_it(bunny_cach
     from neuras_distill.bake.glsl import generate_fragment_shader
     from neuras_distill.geometry.mesh import MeshData
     from neuras_distill.neural.model import NeuralTextureModel
-    from neuras_distill.pipeline.decisions import measure_view_dependence
+    from neuras_distill.pipeline.rules import measure_view_dependence
 
     glossy, _ = bunny_cache
     matte = BunnyField(resolution=48, gloss=0.0)

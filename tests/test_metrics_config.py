@@ -101,7 +101,7 @@ def test_skybox_texture_and_eval_settings_are_validated():
                         ({"texture": {"quantize_above": 70000}}, "quantize_above")):
         with pytest.raises(BadInputError, match=needle):
             load_config(overrides=bad)
-    from neuras_distill.pipeline.decisions import capped_width
+    from neuras_distill.pipeline.rules import capped_width
 
     assert capped_width(1920, 192) == 384 and capped_width(1920, 192, 0.0) == 1920 and capped_width(640, 192, 0) == 640
     assert capped_width(1920, 1920) == 1920 and capped_width(1920, 192, 4.0) == 768

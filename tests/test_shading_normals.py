@@ -115,7 +115,7 @@ def test_the_setting_is_checked():
 
 def test_only_rough_normals_under_a_facing_input_are_smoothed():
     from neuras_distill.pipeline.choices import shading_normals
-    from neuras_distill.pipeline.decisions import ROUGH_NORMALS_DEG
+    from neuras_distill.pipeline.rules import ROUGH_NORMALS_DEG
     from neuras_distill.pipeline.choices import Decisions
 
     rough, smooth = bumpy(two_spheres()), two_spheres()

@@ -1,5 +1,5 @@
 """Near misses (the field shows a foreground surface the mesh missed) stay out of the skyboxes' training:
-which pixels they are (``decisions.near_miss_pixels``) and what leaving them out does to the skybox (``fit``)."""
+which pixels they are (``rules.near_miss_pixels``) and what leaving them out does to the skybox (``fit``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from neuras_distill.config import TrainConfig
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.skybox import SkyboxLayers, SkyboxModel
 from neuras_distill.neural.train import fit
-from neuras_distill.pipeline.decisions import near_miss_pixels
+from neuras_distill.pipeline.rules import near_miss_pixels
 
 
 def _rays(h, w):

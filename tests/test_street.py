@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from neuras_distill.errors import BadInputError
 from neuras_distill.fields.base import check_field
 from neuras_distill.fields.wrappers import SDFToDensityField
-from neuras_distill.pipeline.decisions import background_is_constant
+from neuras_distill.pipeline.rules import background_is_constant
 from neuras_distill.render.cameras import Cameras, look_at
 from neuras_distill.render.volume import VolumeRenderer
 from neuras_distill.scenes.street import AABB, LANE_Y, StreetField, make_street

@@ -437,7 +437,7 @@ def test_the_fringe_threshold_scales_with_the_training_views_width():
     from types import SimpleNamespace
 
     from neuras_distill.pipeline.choices import Decisions, fringe_shell
-    from neuras_distill.pipeline.decisions import fringe_width_pixels
+    from neuras_distill.pipeline.rules import fringe_width_pixels
 
     def disk(width: int, ramp_px: float) -> np.ndarray:
         """(1, H, W) opacity of a disk a third of the view wide whose edge fades over ``ramp_px`` pixels."""

@@ -48,11 +48,14 @@ class PlateauStop:
 
     @torch.no_grad()
     def psnr(self, model, skybox, pixels: TrainingPixels, models: list) -> float:
-        """PSNR in dB of the model's (and skybox's) colours of the held-back pixels against the teacher's;
-        ``models`` (the modules recording touched texels) record nothing meanwhile."""
+        """PSNR in dB of the model's (and skybox's) colours of the held-back pixels against the teacher's, in eval
+        mode; ``models`` (the modules recording touched texels) record nothing meanwhile."""
         device = model.texture.data.device
         for m in models:
             m.record_touched = False
+        for m in (model, skybox):                      # no quantizer statistics or code restarts from scoring
+            if m is not None:
+                m.eval()
         idx, mesh = self.held, self.on_mesh
         rgb = torch.zeros(idx.numel(), 3, device=device)
         if mesh.any():
@@ -64,6 +67,9 @@ class PlateauStop:
             rgb[(~mesh).to(device)] = skybox(pixels.sky.origins[view.to(device)], pixels.dirs[sel, :3].to(device))[0]
         for m in models:
             m.record_touched = True
+        for m in (model, skybox):
+            if m is not None:
+                m.train()
         mse = float(torch.mean((rgb.cpu() - pixels.targets[idx]) ** 2))
         return -10.0 * math.log10(max(mse, 1e-10))
 

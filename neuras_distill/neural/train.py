@@ -113,7 +113,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, c
         skybox: optional :class:`SkyboxModel` trained jointly on the pixels the mesh does not cover.
         origins: (N, 3) float32 camera centres relative to ``skybox.layers.center`` (required with skybox).
         sky_pixels: optional (N, H, W) bool, the uncovered pixels the skybox learns from (default: all of them);
-            an uncovered pixel outside it is left out of the loss (``pipeline.decisions.near_miss_pixels``: the
+            an uncovered pixel outside it is left out of the loss (``pipeline.rules.near_miss_pixels``: the
             field shows a surface there that the mesh missed, which the skybox must not smear over the sky).
         checkpoint: optional :class:`neural.train_checkpoint.TrainCheckpoint`: the loop starts from its stored
             state when it has one (``TrainLog.resumed_from_step``) and saves its state when it is due.

@@ -3,7 +3,7 @@ and returns its choice, recording a :class:`Decision` (component, kept, reason, 
 :class:`Decisions`. The report renders them: ``report.json["left_out"]`` lists the components left out with
 their reasons (the contract), ``report.json["decisions"]`` every decision with what was measured.
 
-The measurements and thresholds themselves live in ``pipeline.decisions``; this module turns them into choices.
+The measurements and thresholds themselves live in ``pipeline.rules``; this module turns them into choices.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..config import DistillConfig
-from . import decisions
+from . import rules
 
 if TYPE_CHECKING:
     from ..fields.base import Field
@@ -55,11 +55,11 @@ class Decisions:
 
 class Background:
     """What rays that miss the foreground see, measured once per run: ``constant`` (bool) and ``reason``
-    (``decisions.background_is_constant``), and the field's constant ``colour`` ((3,) float32 tensor)."""
+    (``rules.background_is_constant``), and the field's constant ``colour`` ((3,) float32 tensor)."""
 
     def __init__(self, field: Field) -> None:
-        self.constant, self.reason = decisions.background_is_constant(field)
-        self.colour = decisions.background_color(field)
+        self.constant, self.reason = rules.background_is_constant(field)
+        self.colour = rules.background_color(field)
 
 
 def skyboxes(mode: str, coverage: np.ndarray, background: Background, record: Decisions) -> tuple[bool, str]:
@@ -87,10 +87,10 @@ def skyboxes(mode: str, coverage: np.ndarray, background: Background, record: De
 def sky_training_pixels(surface_depths: np.ndarray, coverage: np.ndarray, origins: np.ndarray,
                         dirs: np.ndarray, aabb, record: Decisions) -> np.ndarray:
     """(N, H, W) bool: the uncovered training pixels the skyboxes learn from: all but the near misses
-    (``decisions.near_miss_pixels``: the field shows a surface inside its foreground box that the mesh missed).
+    (``rules.near_miss_pixels``: the field shows a surface inside its foreground box that the mesh missed).
     ``origins`` (N, 3), ``dirs`` (N, H, W, 3): the training rays. Leaving them out is recorded with their share
     of the pixels."""
-    near = decisions.near_miss_pixels(surface_depths, coverage, origins, dirs, aabb)
+    near = rules.near_miss_pixels(surface_depths, coverage, origins, dirs, aabb)
     uncovered = ~coverage
     share = float(near.sum() / max(int(uncovered.sum()), 1))
     if near.any():
@@ -104,7 +104,7 @@ def sky_training_pixels(surface_depths: np.ndarray, coverage: np.ndarray, origin
 
 def silhouette_blend(mode: str, fringe_pixels: float, train, test, record: Decisions) -> bool:
     """Whether the bundle plays with the soft-silhouette pass: when the field's fringe, ``fringe_pixels`` wide in
-    the training views, is at least ``decisions.SILHOUETTE_BLEND_MIN_PIXELS`` wide at the held-out (playing)
+    the training views, is at least ``rules.SILHOUETTE_BLEND_MIN_PIXELS`` wide at the held-out (playing)
     resolution (``mode`` "auto"; "on" / "off" force it); otherwise left out with the reason."""
     if mode != "auto":
         if mode == "off":
@@ -113,28 +113,28 @@ def silhouette_blend(mode: str, fringe_pixels: float, train, test, record: Decis
             record.keep("soft-silhouette pass", "turned on by configuration")
         return mode == "on"
     width = fringe_pixels * float(test.width) / float(train.width)
-    if width >= decisions.SILHOUETTE_BLEND_MIN_PIXELS:
+    if width >= rules.SILHOUETTE_BLEND_MIN_PIXELS:
         record.keep("soft-silhouette pass", f"the field's edges are {width:.1f} pixels wide at "
                                             f"{test.width}x{test.height}", edge_pixels=width)
         return True
     record.leave_out("soft-silhouette pass",
                      f"the field's edges are {width:.1f} pixels wide at {test.width}x{test.height} "
-                     f"(< {decisions.SILHOUETTE_BLEND_MIN_PIXELS:g}): the mesh's hard edges match them",
+                     f"(< {rules.SILHOUETTE_BLEND_MIN_PIXELS:g}): the mesh's hard edges match them",
                      edge_pixels=width)
     return False
 
 
 def fringe_shell(mode: str, opacity: np.ndarray, background: Background, record: Decisions) -> bool:
     """Whether the mesh should enclose the field's soft fringe (see ``geometry.marching``): when the fringe is
-    at least ``decisions.FRINGE_MIN_PIXELS`` wide in training views ``decisions.FRINGE_REFERENCE_WIDTH`` wide
+    at least ``rules.FRINGE_MIN_PIXELS`` wide in training views ``rules.FRINGE_REFERENCE_WIDTH`` wide
     (scaled with the views' width; ``opacity``: (N, H, W) teacher opacities) and the background is one constant
     colour (over it, a partly opaque fringe pixel is one colour per view and angle, which the texture learns with
     the facing input; over skyboxes it is not)."""
     if mode != "auto":
         return mode == "on"
-    width = decisions.fringe_width_pixels(opacity)
+    width = rules.fringe_width_pixels(opacity)
     view_width = int(np.asarray(opacity).shape[-1])
-    minimum = decisions.FRINGE_MIN_PIXELS * view_width / decisions.FRINGE_REFERENCE_WIDTH
+    minimum = rules.FRINGE_MIN_PIXELS * view_width / rules.FRINGE_REFERENCE_WIDTH
     if width < minimum:
         record.leave_out("soft-fringe shell",
                          f"the field's fringe is {width:.1f} training pixels wide (< {minimum:.3g} in views "
@@ -193,20 +193,20 @@ def extra_views(mode: str, inside: np.ndarray, fringe_shell: bool, train: int, f
 
 def shading_normals(mesh, use_facing: bool, rounds: int, record: Decisions) -> int:
     """Rounds of normal smoothing for the facing input (``MeshData.normal_smoothing``): ``rounds`` when the
-    mesh's normals are rough (their median turn under smoothing above ``decisions.ROUGH_NORMALS_DEG``: a surface
+    mesh's normals are rough (their median turn under smoothing above ``rules.ROUGH_NORMALS_DEG``: a surface
     fused from a NeRF's depths), else 0; without the facing input the normals are not used and nothing is
     recorded."""
     if not use_facing or rounds <= 0:
         return 0
     rough = mesh.normal_roughness_deg(rounds)
     measured = {"normal_roughness_deg": rough, "rounds": rounds}
-    if rough > decisions.ROUGH_NORMALS_DEG:
+    if rough > rules.ROUGH_NORMALS_DEG:
         record.keep("smoothed shading normals", f"the surface's vertex normals turn a median {rough:.1f} degrees "
-                    f"under {rounds} rounds of smoothing (above {decisions.ROUGH_NORMALS_DEG:g}): the facing input "
+                    f"under {rounds} rounds of smoothing (above {rules.ROUGH_NORMALS_DEG:g}): the facing input "
                     "reads the smoothed ones", **measured)
         return int(rounds)
     record.leave_out("smoothed shading normals", f"the surface's vertex normals turn a median {rough:.1f} degrees "
-                     f"under smoothing (at most {decisions.ROUGH_NORMALS_DEG:g}): they are kept as they are",
+                     f"under smoothing (at most {rules.ROUGH_NORMALS_DEG:g}): they are kept as they are",
                      **measured)
     return 0
 
@@ -224,7 +224,7 @@ def view_dependence(field: Field, mesh, cfg: DistillConfig, record: Decisions,
     if mode == "off":
         record.leave_out("view direction", "turned off by configuration")
         return False, None
-    spread = decisions.measure_view_dependence(field, mesh, seed=cfg.train.seed)
+    spread = rules.measure_view_dependence(field, mesh, seed=cfg.train.seed)
     if spread < cfg.texture.view_threshold:
         record.leave_out("view direction",
                          f"the field's colour barely changes with view direction (mean spread {spread:.4f} < "
@@ -240,13 +240,13 @@ def core_view_dependence(field: Field, mesh, cfg: DistillConfig, use_viewdir: bo
 
     A core at the level the field's colour comes from (``geometry.colour_level``, ``mc_colour_level_used``)
     sees no parallax through the fringe, so it needs the direction only when the field's own colour changes
-    with it (measured on the core, ``decisions.measure_view_dependence``); the shell keeps it (its fringe
+    with it (measured on the core, ``rules.measure_view_dependence``); the shell keeps it (its fringe
     pixels average colours along the ray). Without it the gradient ball's held-out core interior scored 41.3
     against 39.3 dB (``NeuralTextureModel``, ``core_viewdir``)."""
     if (not use_viewdir or mesh.core_faces is None or cfg.texture.view_dependence != "auto"
             or not mesh.stats.get("mc_colour_level_used")):
         return None
-    spread = decisions.measure_view_dependence(field, mesh.layers()[0], seed=cfg.train.seed)
+    spread = rules.measure_view_dependence(field, mesh.layers()[0], seed=cfg.train.seed)
     if spread >= cfg.texture.view_threshold:
         return None
     record.leave_out("view direction of the core's shader",

@@ -6,7 +6,7 @@ from __future__ import annotations
 from ...bake.bundle import Bundle, bake
 from ...bake.plain_texture import plain_texture_rgb8
 from ...playback.shaders import VERTEX_SHADER
-from .. import choices, decisions
+from .. import choices, rules
 from ..stage_results import Backdrop, CameraSplit, DistilledModel, TeacherResult, TrainingViews
 from .context import RunContext
 
@@ -17,7 +17,7 @@ def bake_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, trai
     dropped); saved as ``<run>/bundle``."""
     cfg = ctx.cfg
     ctx.clock.start("bake", "quantized features -> textures, MLP -> GLSL")
-    blend = choices.silhouette_blend(cfg.texture.soft_silhouettes, decisions.fringe_width_pixels(teacher.opacities),
+    blend = choices.silhouette_blend(cfg.texture.soft_silhouettes, rules.fringe_width_pixels(teacher.opacities),
                                      views.train, views.test, ctx.decisions)
     left_out = ctx.decisions.left_out()
     bundle = bake(distilled.model, training.mesh, background_color=backdrop.clear.tolist(),

@@ -8,7 +8,7 @@ from ...neural.convergence import PlateauStop
 from ...neural.model import NeuralTextureModel
 from ...neural.train import fit
 from ...neural.train_checkpoint import TrainCheckpoint
-from .. import decisions
+from .. import rules
 from ..cache import digest
 from ..stage_results import (
     Backdrop,
@@ -28,19 +28,19 @@ def training_seconds(ctx: RunContext, plan: TrainingPlan) -> float | None:
     budget = ctx.cfg.train.run_budget_s
     if not budget:
         return plan.time_budget_s
-    left = decisions.run_budget_left(budget, ctx.clock.elapsed(), plan.eval_seconds or 0.0)
+    left = rules.run_budget_left(budget, ctx.clock.elapsed(), plan.eval_seconds or 0.0)
     return min(plan.time_budget_s or left, left)
 
 
 def plateau_stop(ctx: RunContext, plan: TrainingPlan) -> PlateauStop | None:
-    """The plateau rule of an automatic plan trained in one process (``decisions.HOLD_BACK_EVERY`` and the
+    """The plateau rule of an automatic plan trained in one process (``rules.HOLD_BACK_EVERY`` and the
     ``PLATEAU_*`` figures); None for configured steps and for ``--nproc`` (the ranks would have to agree)."""
     if plan.configured_steps or ctx.pool is not None:
         return None
-    return PlateauStop(hold_back_every=decisions.HOLD_BACK_EVERY,
-                       check_every=max(25, (plan.steps or 0) // decisions.PLATEAU_CHECKS),
-                       patience=decisions.PLATEAU_PATIENCE, min_gain_db=decisions.PLATEAU_MIN_GAIN_DB,
-                       min_progress=decisions.PLATEAU_MIN_PROGRESS, seed=ctx.cfg.train.seed)
+    return PlateauStop(hold_back_every=rules.HOLD_BACK_EVERY,
+                       check_every=max(25, (plan.steps or 0) // rules.PLATEAU_CHECKS),
+                       patience=rules.PLATEAU_PATIENCE, min_gain_db=rules.PLATEAU_MIN_GAIN_DB,
+                       min_progress=rules.PLATEAU_MIN_PROGRESS, seed=ctx.cfg.train.seed)
 
 
 def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, training: TrainingViews,

@@ -9,7 +9,7 @@ import numpy as np
 from ...errors import require
 from ...geometry.extract import SHELL_TEXEL_SCALE, Surface, extract_surface, unwrap_surface
 from ...geometry.unwrap import atlas_shape
-from .. import choices, decisions
+from .. import choices, rules
 from ..cache import digest
 from ..stage_results import CameraSplit, GeometryResult, ShaderInputs, TeacherResult, TrainingPlan
 from .context import RunContext, settings
@@ -28,10 +28,10 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     auto_side = ctx.cfg.texture.resolution == 0
     side, density = choose_atlas_side(ctx, surface, views, plan) if auto_side else (ctx.cfg.texture.resolution, {})
     weighted = ctx.cfg.texture.view_weighted_texels and surface.layout is None
-    weights = decisions.view_texel_weights(surface.mesh, views.train) if weighted else None
+    weights = rules.view_texel_weights(surface.mesh, views.train) if weighted else None
     page_size = ctx.cfg.texture.page_size
     paged = page_size < max(side, ctx.cfg.texture.max_resolution if auto_side else side)
-    key = digest("geometry", ctx.keys["surface"], side, decisions.MIN_TEXEL_YIELD if auto_side else None,
+    key = digest("geometry", ctx.keys["surface"], side, rules.MIN_TEXEL_YIELD if auto_side else None,
                  *(("view-weighted texels",) if weighted else ()), *(("pages of", page_size) if paged else ()))
 
     def unwrap_at(at_side: int):
@@ -44,9 +44,9 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
             return GeometryResult(mesh, density)
         # the side was chosen from the trial unwrap's uv area; many small charts lose more of a small atlas to
         # their padding: unwrap once more at a larger side when too few texels hold surface
-        wanted = density["pixels"] / decisions.PIXELS_PER_TEXEL ** 2
+        wanted = density["pixels"] / rules.PIXELS_PER_TEXEL ** 2
         used = used_texels(mesh)
-        grown = decisions.side_for_texels(side, used, wanted, hi=min(ctx.cfg.texture.max_resolution,
+        grown = rules.side_for_texels(side, used, wanted, hi=min(ctx.cfg.texture.max_resolution,
                                                                      density.get("budget", side)))
         if grown == side:
             return GeometryResult(mesh, density)
@@ -111,22 +111,22 @@ def extract(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, enclose
 
 def choose_atlas_side(ctx: RunContext, surface: Surface, views: CameraSplit, plan: TrainingPlan) -> tuple[int, dict]:
     """(atlas side, texel-density figures): the side at which the training views see about one texel per
-    ``decisions.PIXELS_PER_TEXEL`` pixels of the surface's core, or per ``PIXELS_PER_TEXEL / SHELL_TEXEL_SCALE``
+    ``rules.PIXELS_PER_TEXEL`` pixels of the surface's core, or per ``PIXELS_PER_TEXEL / SHELL_TEXEL_SCALE``
     pixels of its fringe shell (laid out at a quarter of the core's texel density), whichever needs more,
     capped by ``texture.max_resolution`` and by what the training plan's samples can fit
-    (``decisions.training_budget_resolution``). The shell counts for foggy fields, whose colour sits mostly in
+    (``rules.training_budget_resolution``). The shell counts for foggy fields, whose colour sits mostly in
     the fringe: the nerfstudio fixture's core covered 8,378 training pixels and got a 128² atlas."""
     layers = surface.trial.layers()
     hi = ctx.cfg.texture.max_resolution
-    side, info = decisions.texel_density_resolution(layers[0], views.train, hi=hi)
+    side, info = rules.texel_density_resolution(layers[0], views.train, hi=hi)
     if len(layers) > 1:
-        shell_side, shell = decisions.texel_density_resolution(
-            layers[1], views.train, hi=hi, pixels_per_texel=decisions.PIXELS_PER_TEXEL / SHELL_TEXEL_SCALE)
+        shell_side, shell = rules.texel_density_resolution(
+            layers[1], views.train, hi=hi, pixels_per_texel=rules.PIXELS_PER_TEXEL / SHELL_TEXEL_SCALE)
         info = dict(info, shell_pixels=shell["pixels"], shell_uv_area=shell["uv_area"], shell_exact=shell["exact"])
         if shell["exact"] > info["exact"]:
             side, info = shell_side, dict(info, exact=shell["exact"], from_shell=1)
     samples = plan.max_steps * plan.samples_per_step
-    budget = decisions.training_budget_resolution(samples, info["uv_area"])
+    budget = rules.training_budget_resolution(samples, info["uv_area"])
     return min(side, budget), dict(info, chosen=min(side, budget), budget=budget, samples=samples)
 
 
@@ -176,7 +176,7 @@ def _record_atlas_pages(ctx: RunContext, stats: dict) -> None:
 def _record_atlas_side(ctx: RunContext, tex_res: int, density: dict) -> None:
     hi = ctx.cfg.texture.max_resolution
     capped = density["exact"] > hi
-    ppt = decisions.PIXELS_PER_TEXEL
+    ppt = rules.PIXELS_PER_TEXEL
     ctx.decisions.leave_out(
         "texels beyond the training views' detail",
         f"atlas {tex_res}x{tex_res} chosen from texel density: the training views see {density['pixels']:.0f} "
@@ -187,7 +187,7 @@ def _record_atlas_side(ctx: RunContext, tex_res: int, density: dict) -> None:
            if density.get("from_shell") else "")
         + (f" (capped at max_resolution {hi})" if capped else "")
         + (f"; limited to {density['budget']} by the training budget ({density['samples']} samples, "
-           f"{decisions.SAMPLES_PER_TEXEL} per used texel)" if density["budget"] < density["exact"] else ""),
+           f"{rules.SAMPLES_PER_TEXEL} per used texel)" if density["budget"] < density["exact"] else ""),
         side=tex_res, **{k: v for k, v in density.items() if isinstance(v, (int, float))})
 
 
@@ -201,13 +201,13 @@ def choose_shader_inputs(ctx: RunContext, mesh, enclose: bool) -> ShaderInputs:
 
 
 def fix_steps(ctx: RunContext, plan: TrainingPlan, mesh) -> TrainingPlan:
-    """Fix the plan's ``steps``: configured, or enough for ``decisions.TARGET_SAMPLES_PER_TEXEL`` samples per
+    """Fix the plan's ``steps``: configured, or enough for ``rules.TARGET_SAMPLES_PER_TEXEL`` samples per
     used texel of the atlas within ``max_steps``; the choice is recorded as a decision."""
     used = used_texels(mesh)
-    steps, needed = decisions.training_steps(used, plan.samples_per_step, plan.max_steps)
+    steps, needed = rules.training_steps(used, plan.samples_per_step, plan.max_steps)
     if plan.configured_steps:
         steps = plan.configured_steps
-    target = decisions.TARGET_SAMPLES_PER_TEXEL
+    target = rules.TARGET_SAMPLES_PER_TEXEL
     if plan.configured_steps:
         why = f"{steps} steps as configured ({needed} would give {target} samples per used texel)"
     elif needed > plan.max_steps:
@@ -215,7 +215,7 @@ def fix_steps(ctx: RunContext, plan: TrainingPlan, mesh) -> TrainingPlan:
                f"affords fewer than the {needed} that give {target} samples to each of {int(used)} used texels")
     else:
         why = (f"at most {steps} steps: they give {target} samples to each of {int(used)} used texels (at least "
-               f"{decisions.MIN_TRAIN_STEPS}); training stops sooner if the held-back pixels stop improving")
+               f"{rules.MIN_TRAIN_STEPS}); training stops sooner if the held-back pixels stop improving")
     ctx.decisions.leave_out("training beyond the atlas's needs", why, steps=int(steps), needed_steps=int(needed))
     plan.steps, plan.needed_steps, plan.used_texels, plan.reason = int(steps), int(needed), int(used), why
     return plan

@@ -10,7 +10,7 @@ import numpy as np
 from ...errors import require
 from ...render.cameras import Cameras
 from ...render.volume import VolumeRenderer
-from .. import choices, decisions, evaluate
+from .. import choices, evaluate, rules
 from ..cache import digest
 from ..stage_results import CameraSplit, TeacherResult, TrainingPlan
 from .context import RunContext, settings
@@ -24,14 +24,14 @@ def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
     cfg = ctx.cfg
     ctx.clock.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
     train_full, test_full = cameras.split(cfg.cameras.test_every)
-    train_width = decisions.capped_width(cfg.teacher.train_width, train_full.width)
-    eval_width = (decisions.capped_width(cfg.eval.width, test_full.width, cfg.eval.max_upscale) if cfg.eval.width
+    train_width = rules.capped_width(cfg.teacher.train_width, train_full.width)
+    eval_width = (rules.capped_width(cfg.eval.width, test_full.width, cfg.eval.max_upscale) if cfg.eval.width
                   else test_full.width)
     if (train_width, eval_width) != (cfg.teacher.train_width, cfg.eval.width or test_full.width):
         ctx.decisions.leave_out(
             "renders beyond the cameras' resolution",
             f"the cameras are {test_full.width} pixels wide: the teacher renders at {train_width} and the held-out "
-            f"frames at {eval_width} pixels (the teacher at most {decisions.MAX_UPSCALE:g}x the cameras' width, the "
+            f"frames at {eval_width} pixels (the teacher at most {rules.MAX_UPSCALE:g}x the cameras' width, the "
             f"held-out frames at most eval.max_upscale = {cfg.eval.max_upscale:g}x; 0 lifts that cap), not the "
             f"configured {cfg.teacher.train_width} / {cfg.eval.width}", train_width=train_width,
             eval_width=eval_width)
@@ -102,7 +102,7 @@ def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer,
     require(bool(np.isfinite(result.images).all()), "the field renders NaN or Inf colours; check its parameters")
     ctx.clock.done(views=len(train), key=key, render_seconds=result.seconds)
     plan_key = digest("plan", key, views.test.to_json(), settings(cfg.train, ("checkpoint_every_s",)),
-                      settings(cfg.texture), settings(cfg.eval), decisions.TRAIN_CAP_S)
+                      settings(cfg.texture), settings(cfg.eval), rules.TRAIN_CAP_S)
     plan = ctx.cached("plan", plan_key, lambda: plan_training(ctx, result.seconds, views),
                       TrainingPlan.save, TrainingPlan.load)
     return teacher, result, plan
@@ -111,7 +111,7 @@ def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer,
 def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -> TrainingPlan:
     """The training plan's limits, known once the teacher has run: the held-out evaluation's estimated seconds,
     training's time cap (``train.time_budget_s``; else what ``train.run_budget_s`` leaves after the time spent so
-    far and the evaluation; else ``decisions.TRAIN_CAP_S``), the measured steps per second and the most steps
+    far and the evaluation; else ``rules.TRAIN_CAP_S``), the measured steps per second and the most steps
     the cap affords (configured steps: those). Steps are fixed after the geometry."""
     cfg, train, test = ctx.cfg, views.train, views.test
     tr = cfg.train
@@ -121,16 +121,16 @@ def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -
     curve = (2 * cfg.teacher.num_steps + sum(cfg.eval.runtime_steps) + cfg.teacher.num_steps) / cfg.teacher.num_steps
     shifts = 2 * len(getattr(ctx.field, "lane_shifts", None) or [])
     eval_pixels = int((len(test) + curve + shifts) * test.width * test.height)
-    eval_seconds = decisions.evaluation_seconds(teacher_seconds, len(train) * train.width * train.height, eval_pixels)
+    eval_seconds = rules.evaluation_seconds(teacher_seconds, len(train) * train.width * train.height, eval_pixels)
     cap = tr.time_budget_s or None
     if tr.run_budget_s:
-        left = decisions.run_budget_left(tr.run_budget_s, ctx.clock.elapsed(), eval_seconds)
+        left = rules.run_budget_left(tr.run_budget_s, ctx.clock.elapsed(), eval_seconds)
         cap = min(cap or left, left)
     if tr.steps:                   # configured steps run to the end unless a time budget is configured too
         return TrainingPlan(time_budget_s=cap, samples_per_step=samples_per_step, steps_per_second=None,
                             configured_steps=tr.steps, max_steps=tr.steps, eval_seconds=eval_seconds)
-    cap = cap or decisions.TRAIN_CAP_S
-    speed = decisions.probe_training_speed(cfg.texture, tr, device=ctx.device)
+    cap = cap or rules.TRAIN_CAP_S
+    speed = rules.probe_training_speed(cfg.texture, tr, device=ctx.device)
     return TrainingPlan(time_budget_s=float(cap), samples_per_step=samples_per_step, steps_per_second=speed,
-                        configured_steps=None, max_steps=max(decisions.MIN_TRAIN_STEPS, int(cap * speed)),
+                        configured_steps=None, max_steps=max(rules.MIN_TRAIN_STEPS, int(cap * speed)),
                         eval_seconds=eval_seconds)

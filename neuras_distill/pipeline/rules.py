@@ -1,4 +1,5 @@
-"""Measurements that decide what a scene does not need, each reported as ``{component, reason}``.
+"""The measurements, thresholds and numeric rules that ``choices.py`` applies (it holds the ``Decision`` records):
+what a scene does not need, how large its atlas is, how long it trains.
 
 * view direction: the field's colour at surface points is compared across view directions; when it barely
   changes, the MLP shader gets no view input (and the generated GLSL has none).
