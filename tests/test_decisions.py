@@ -69,7 +69,7 @@ def test_a_run_budget_leaves_training_what_the_earlier_stages_and_the_evaluation
 
 
 def test_the_report_names_the_rule_that_stopped_training():
-    from neuras_distill.pipeline.run_report import training_stop
+    from neuras_distill.pipeline.report_json import training_stop
     from neuras_distill.pipeline.stage_results import TrainingPlan
 
     auto = TrainingPlan(time_budget_s=600.0, samples_per_step=8192, steps_per_second=100.0, configured_steps=None,

@@ -15,7 +15,7 @@ from neuras_distill.config import TextureConfig, TrainConfig
 from neuras_distill.device import OUT_OF_MEMORY, chunk_for_memory, field_device, move_field, resolve_device
 from neuras_distill.device_field import DeviceField, on_device
 from neuras_distill.errors import BadInputError
-from neuras_distill.pipeline.run_report import device_info
+from neuras_distill.pipeline.report_json import device_info
 from neuras_distill.playback.context import software_gl
 from neuras_distill.scenes.synthetic import make_scene
 

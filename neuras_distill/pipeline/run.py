@@ -33,8 +33,8 @@ from ..errors import BadInputError, require
 from ..render.cameras import Cameras
 from . import report as report_mod, stages
 from .cache import StageCache
+from .report_json import build_report
 from .run_outputs import write_run_outputs
-from .run_report import build_report
 from .rundir import RunFolder
 from .stages.context import RunContext
 
