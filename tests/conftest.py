@@ -120,10 +120,45 @@ def http_root(tmp_path_factory):
 DISTILLING_FIXTURES = frozenset({"small_run", "sky_run"})
 
 
+#: Under pytest-xdist (``-n 2``, the default addopts) each worker process gets one torch thread, so two workers
+#: share the 2 cores without oversubscribing them; the processes a test starts inherit it (OMP_NUM_THREADS).
+WORKER_THREADS = 1 if os.environ.get("PYTEST_XDIST_WORKER") else None
+if WORKER_THREADS is not None:
+    os.environ["OMP_NUM_THREADS"] = str(WORKER_THREADS)
+    os.environ["MKL_NUM_THREADS"] = str(WORKER_THREADS)
+
+
+def pytest_configure(config):
+    if WORKER_THREADS is not None:
+        import torch
+
+        torch.set_num_threads(WORKER_THREADS)
+
+
+def _shared_fixture_group(item) -> str | None:
+    """The ``xdist_group`` of a test that uses an expensive shared fixture: "shared-distillations" for the
+    distilling fixtures (built once for the whole run), its file for a module- or run-wide fixture defined in
+    that file; None when every fixture it uses is per test or a conftest's cheap one (built once per worker)."""
+    defs = getattr(getattr(item, "_fixtureinfo", None), "name2fixturedefs", {})
+    if DISTILLING_FIXTURES & set(getattr(item, "fixturenames", ())):
+        return "shared-distillations"
+    own_file = item.nodeid.split("::")[0]
+    if any(d.scope != "function" and d.baseid == own_file for fixture_defs in defs.values() for d in fixture_defs):
+        return own_file
+    return None
+
+
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
+    """Marks the users of a distilling fixture ``slow``. Gives each test that shares an expensive fixture an
+    ``xdist_group`` (:func:`_shared_fixture_group`), so that under ``--dist loadgroup`` that fixture is built on
+    one worker; every other test goes to whichever worker is free."""
     for item in items:
         if DISTILLING_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.slow)
+        group = _shared_fixture_group(item)
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -184,7 +219,7 @@ def _torch_threads(n: int):
     import torch
 
     old = torch.get_num_threads()
-    torch.set_num_threads(n)
+    torch.set_num_threads(min(n, WORKER_THREADS or n))
     try:
         yield
     finally:
