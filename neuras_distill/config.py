@@ -146,6 +146,13 @@ class TextureConfig:
     street has not been measured with it). One-layer meshes only."""
     feature_dim: int = 8
     """Channels per texel (D)."""
+    coarse_factor: int = 8
+    """A coarse feature level under the atlas, this many times fewer texels a side, trained with it and summed
+    into every texel's feature before baking (``neural.texture.NeuralTexture``; the bundle does not change); 1:
+    none. A run keeps it when training gives each used texel fewer samples than the texel rule asks for, and says
+    so in ``left_out`` otherwise (``pipeline.choices.coarse_level``). Flat surfaces, whose texels each see few
+    training samples, converge in it: the street's smooth region 36.64 -> 38.31 dB with 8 (at 1024² against
+    512² alone, 2000 steps; docs/decisions.md "A coarse feature level under the atlas")."""
     num_codes: int = 32768
     """Vector-quantizer codebook size (K); codes never used are dropped at bake time. 32768, not the paper's
     1024: a smooth colour gradient needs finer steps than k-means of fewer codes gives, and a played 1080p view
@@ -308,6 +315,8 @@ class DistillConfig:
         require(0 <= t.normal_smoothing <= 1000,
                 f"texture.normal_smoothing must be in 0..1000 rounds, got {t.normal_smoothing}")
         require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
+        require(1 <= t.coarse_factor <= 64, f"texture.coarse_factor must be in 1..64 (1: no coarse level), got "
+                                           f"{t.coarse_factor}")
         require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
         require(0 <= t.quantize_above <= 65535, f"texture.quantize_above must be in 0..65535 texels (what the uint16 "
                 f"index holds; 0: always k-means), got {t.quantize_above}")

@@ -90,3 +90,23 @@ def test_the_report_names_the_rule_that_stopped_training():
                          max_steps=300, steps=300, needed_steps=7009, used_texels=28032)
     assert training_stop(fixed, dict(log, steps=300)) == {"rule": "configured steps", "steps": 300,
                                                           "why": "the 300 configured steps ran"}
+
+
+def test_the_coarse_level_is_kept_only_where_texels_are_short_of_samples():
+    from neuras_distill.pipeline.choices import Decisions, coarse_level
+    from neuras_distill.pipeline.rules import TARGET_SAMPLES_PER_TEXEL
+    from neuras_distill.pipeline.stage_results import TrainingPlan
+
+    def plan(steps):
+        return TrainingPlan(time_budget_s=None, samples_per_step=8192, steps_per_second=None,
+                            configured_steps=None, steps=steps, used_texels=28032)
+
+    full = 28032 * TARGET_SAMPLES_PER_TEXEL // 8192          # 7008 steps: 2048 samples per texel exactly
+    record = Decisions()
+    assert coarse_level(8, plan(full), record) == 1
+    assert coarse_level(8, plan(full - 1), record) == 8
+    assert coarse_level(1, plan(10), record) == 1
+    left, kept, off = record.items
+    assert not left.kept and "2048 samples" in left.reason and left.measured["samples_per_texel"] == 2048
+    assert kept.kept and "8 times coarser" in kept.reason and kept.measured["samples_per_texel"] < 2048
+    assert not off.kept and "coarse_factor 1" in off.reason

@@ -19,7 +19,7 @@ from neuras_distill.render.volume import VolumeRenderer
 CASES = [
     (NeuralTextureModel.__init__, TextureConfig(),
      {"feature_dim": "feature_dim", "num_codes": "num_codes", "hidden": "hidden", "num_layers": "num_layers",
-      "use_vq": "quantize", "quantize_above": "quantize_above"}),
+      "use_vq": "quantize", "quantize_above": "quantize_above", "coarse_factor": "coarse_factor"}),
     (MLPShader.__init__, TextureConfig(), {"hidden": "hidden", "num_layers": "num_layers"}),
     (SkyboxModel.__init__, SkyboxConfig(), {"feature_dim": "feature_dim", "num_codes": "num_codes",
                                             "hidden": "hidden"}),

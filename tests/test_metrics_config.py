@@ -98,7 +98,8 @@ def test_skybox_texture_and_eval_settings_are_validated():
                         ({"train": {"texture_lr_scale": 0.0}}, "texture_lr_scale"),
                         ({"train": {"lr": float("nan")}}, "train.lr"),
                         ({"train": {"patch": 0}}, "train.patch"),
-                        ({"texture": {"quantize_above": 70000}}, "quantize_above")):
+                        ({"texture": {"quantize_above": 70000}}, "quantize_above"),
+                        ({"texture": {"coarse_factor": 0}}, "coarse_factor")):
         with pytest.raises(BadInputError, match=needle):
             load_config(overrides=bad)
     from neuras_distill.pipeline.rules import capped_width

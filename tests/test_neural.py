@@ -220,6 +220,59 @@ def test_fill_unseen_texels_copies_nearest_touched():
     assert torch.equal(t[0, 0], before[1, 1]) and torch.equal(t[3, 5], before[2, 5])
 
 
+@pytest.mark.parametrize("pages", [1, 2])
+def test_coarse_level_adds_its_bilinear_lookup_at_each_texel_centre_and_folds_into_the_atlas(pages):
+    """A texel's feature is its own value plus the coarse atlas's bilinear lookup at the texel's centre, within
+    the texel's page; folding moves it all into the fine atlas without changing any feature."""
+    torch.manual_seed(0)
+    tex = NeuralTexture(8 * pages, 8, 3, coarse_factor=4, pages=pages)
+    assert tuple(tex.coarse.shape) == (2 * pages, 2, 3) and tex.coarse.abs().max() == 0
+    tex.coarse.data.normal_()
+    j, i = 1, 6                                       # texel (6, 1): centre uv (6.5/8, 1.5/(8 P))
+    uv = torch.tensor([[6.5 / 8, 1.5 / (8 * pages)]])
+    cidx, cw = bilinear_corners(uv, 2 * pages, 2, pages)
+    expected = tex.data[j, i] + (cw[0, :, None] * tex.coarse.view(-1, 3)[cidx[0]]).sum(0)
+    torch.testing.assert_close(tex.gather(torch.tensor([j * 8 + i]))[0], expected)
+    if pages == 2:                                    # a texel on the second page reads only its page's coarse rows
+        below = tex.gather(torch.tensor([8 * 8 + 0]))[0] - tex.data[8, 0]
+        torch.testing.assert_close(below, tex.coarse[2, 0].detach())
+    before = tex.features_flat().clone()
+    tex.fold_coarse()
+    assert tex.coarse.abs().max() == 0
+    torch.testing.assert_close(tex.features_flat(), before)
+
+
+def test_coarse_level_gets_the_gradient_of_its_touched_texels_only():
+    tex = NeuralTexture(16, 16, 2, coarse_factor=4)
+    rows = tex.gather(torch.tensor([[0, 1, 16, 17]]))          # the four texels of the atlas's corner
+    rows.sum().backward()
+    assert tex.data.grad.is_sparse and not tex.coarse.grad.is_sparse
+    touched = {tuple(ij) for ij in torch.nonzero(tex.coarse.grad.abs().sum(-1)).tolist()}
+    assert touched == {(0, 0)}                                  # their centres lie before the first coarse centre
+    assert tex.coarse.grad.sum().item() == pytest.approx(4 * 2)  # each texel's coarse weights sum to 1, 2 channels
+
+
+def test_a_model_with_a_coarse_level_bakes_what_it_plays():
+    torch.manual_seed(0)
+    m = NeuralTextureModel(16, 16, feature_dim=4, num_codes=32, coarse_factor=4)
+    m.texture.coarse.data.normal_()
+    m.eval()
+    uv = torch.rand(200, 2)
+    dirs = torch.nn.functional.normalize(torch.randn(200, 3), dim=1)
+    with torch.no_grad():
+        continuous, _ = m(uv, dirs)
+    m.start_vq()                                      # k-means of fine + coarse: the coarse level is folded in
+    assert m.texture.coarse.abs().max() == 0
+    index, codebook = m.baked_features()
+    idx, w = bilinear_corners(uv, 16, 16)
+    feats = torch.from_numpy(codebook)[torch.from_numpy(index).view(-1)[idx]]
+    f = w[:, 0:1] * feats[:, 0] + w[:, 1:2] * feats[:, 1] + w[:, 2:3] * feats[:, 2] + w[:, 3:4] * feats[:, 3]
+    with torch.no_grad():
+        played, _ = m(uv, dirs)
+    assert torch.equal(m.shader(f, dirs), played)
+    assert (played - continuous).abs().max() < 0.1    # 32 codes for 256 texels: close, not exact
+
+
 # ------------------------------------------------------------------------------------------ fit
 def synthetic_gbuffer(n=4, res=32, seed=0):
     """A fake G-buffer: each view sees an affine patch of the atlas; colour analytic in uv and view dir."""

@@ -81,6 +81,8 @@ class NeuralTextureModel(nn.Module):
             Its fragments are only those outside the core's silhouette, so a wider shell costs little.
         quantize_above: with use_vq, the most touched texels that stay exact after training instead of being
             quantized (:meth:`start_vq`); 0: always quantize.
+        coarse_factor: a coarse feature level this many times fewer texels a side under the atlas
+            (:class:`NeuralTexture`); 1: none.
         pages: P atlas pages of ``tex_width`` squared texels stacked along v (``tex_height = P * tex_width``;
             ``geometry.unwrap(page_size=)``): the bilinear lookup stays within a uv's page
             (``texture.bilinear_corners``), as the baked shader's texture-array lookup does.
@@ -89,21 +91,24 @@ class NeuralTextureModel(nn.Module):
     @classmethod
     def for_atlas(cls, config: TextureConfig, tex_height: int, tex_width: int, *, pages: int = 1,
                   mesh_layers: int = 1, use_viewdir: bool = True, use_facing: bool = False,
-                  core_viewdir: bool | None = None) -> NeuralTextureModel:
+                  core_viewdir: bool | None = None, coarse_factor: int | None = None) -> NeuralTextureModel:
         """The model the texture section ``config`` describes (feature_dim, num_codes, hidden, num_layers,
-        shell_hidden, quantize, quantize_above) for a ``tex_height`` x ``tex_width`` atlas of ``pages`` pages, with
-        the mesh's layers and the shader inputs the pipeline chose (arguments as for the constructor)."""
+        shell_hidden, quantize, quantize_above, coarse_factor unless the pipeline chose another) for a
+        ``tex_height`` x ``tex_width`` atlas of ``pages`` pages, with the mesh's layers and the shader inputs the
+        pipeline chose (arguments as for the constructor)."""
         return cls(tex_height, tex_width, feature_dim=config.feature_dim, num_codes=config.num_codes,
                    hidden=config.hidden, num_layers=config.num_layers, use_viewdir=use_viewdir,
                    use_vq=config.quantize, use_facing=use_facing, mesh_layers=mesh_layers, core_viewdir=core_viewdir,
-                   shell_hidden=config.shell_hidden, pages=pages, quantize_above=config.quantize_above)
+                   shell_hidden=config.shell_hidden, pages=pages, quantize_above=config.quantize_above,
+                   coarse_factor=config.coarse_factor if coarse_factor is None else coarse_factor)
 
     def __init__(self, tex_height: int, tex_width: int, feature_dim: int = _TEXTURE.feature_dim,
                  num_codes: int = _TEXTURE.num_codes, hidden: int = _TEXTURE.hidden,
                  num_layers: int = _TEXTURE.num_layers, use_viewdir: bool = True, use_vq: bool = _TEXTURE.quantize,
                  sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False,
                  mesh_layers: int = 1, core_viewdir: bool | None = None, shell_hidden: int | None = None,
-                 pages: int = 1, quantize_above: int = _TEXTURE.quantize_above) -> None:
+                 pages: int = 1, quantize_above: int = _TEXTURE.quantize_above,
+                 coarse_factor: int = _TEXTURE.coarse_factor) -> None:
         super().__init__()
         self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
         self.pages = int(pages)
@@ -112,7 +117,8 @@ class NeuralTextureModel(nn.Module):
                              f"{self.tex_height} x {self.tex_width}")
         self.hidden, self.num_layers = int(hidden), int(num_layers)
         self.use_viewdir, self.use_vq, self.sparse_grad = bool(use_viewdir), bool(use_vq), bool(sparse_grad)
-        self.texture = NeuralTexture(self.tex_height, self.tex_width, self.feature_dim)
+        self.texture = NeuralTexture(self.tex_height, self.tex_width, self.feature_dim,
+                                     coarse_factor=coarse_factor, pages=self.pages)
         self.vq = VectorQuantizer(num_codes, self.feature_dim, dead_after=dead_after) if self.use_vq else None
         if mesh_layers not in (1, 2):
             raise ValueError(f"mesh_layers must be 1 or 2, got {mesh_layers}")
@@ -136,7 +142,7 @@ class NeuralTextureModel(nn.Module):
     @torch.no_grad()
     def trained_texel_codes(self) -> torch.Tensor:
         """(M,) int64: the nearest code of every touched texel (of all texels before any was recorded)."""
-        flat = self.texture.flat.detach()
+        flat = self.texture.features_flat()
         sel = torch.nonzero(self.touched).flatten()
         return self.vq.quantize_all(flat[sel] if sel.numel() else flat)
 
@@ -184,7 +190,7 @@ class NeuralTextureModel(nn.Module):
         if self.quantizing and not self.training and not torch.is_grad_enabled():
             # playing the trained model (bake, plain texture, evaluation): every texel's code once, reused
             uniq, inv = torch.unique(idx, return_inverse=True)
-            codes = self.vq.quantize_all(self.texture.flat.detach().float())[uniq]
+            codes = self.vq.quantize_all(self.texture.features_flat().float())[uniq]
             corners = self.vq.codebook.detach()[codes][inv]
             aux = {"vq_loss": torch.zeros((), device=uv.device), "indices": codes[inv]}
         elif self.quantizing:
@@ -228,6 +234,7 @@ class NeuralTextureModel(nn.Module):
         if after_training and sample is None and 0 < int(self.touched.sum()) <= self.quantize_above:
             self.vq_skipped.fill_(True)
             return
+        self.texture.fold_coarse()
         if sample is None:
             flat = self.texture.flat.detach()
             sel = torch.nonzero(self.touched).flatten()
@@ -256,6 +263,7 @@ class NeuralTextureModel(nn.Module):
         mask = np.asarray(touched_mask.cpu() if torch.is_tensor(touched_mask) else touched_mask, dtype=bool)
         if mask.shape != (self.tex_height, self.tex_width):
             raise ValueError(f"touched_mask must be {(self.tex_height, self.tex_width)}, got {mask.shape}")
+        self.texture.fold_coarse()
         if mask.all() or not mask.any():
             return 0
         _, (jj, ii) = ndimage.distance_transform_edt(~mask, return_indices=True)
@@ -274,7 +282,7 @@ class NeuralTextureModel(nn.Module):
         to the pruned codebook. Without VQ the "codebook" is the list of distinct texel features (exact, no
         quantization), which fits the uint16 index texture when there are at most 65535 of them.
         """
-        flat = self.texture.flat.detach().float()
+        flat = self.texture.features_flat().float()
         if self.quantizing:
             idx = self.vq.quantize_all(flat)
             codebook, remap = self.vq.prune(idx)

@@ -17,6 +17,7 @@ addressed in GLSL (each page its own layer, CLAMP_TO_EDGE within it).
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import torch
@@ -69,37 +70,91 @@ def bilinear_corners(uv: torch.Tensor, height: int, width: int, pages: int = 1) 
     return idx, weights
 
 
+#: Texels whose coarse lookups :meth:`NeuralTexture.features_flat` computes at once.
+_FOLD_CHUNK = 1 << 20
+
+
 class NeuralTexture(nn.Module):
-    """A learnable feature atlas.
+    """A learnable feature atlas, optionally with a coarse level under it.
+
+    A texel's feature is ``data[j, i]`` plus, with ``coarse_factor`` f > 1, the bilinear lookup of a coarse atlas
+    (f times fewer texels a side, same pages) at the texel's centre. The coarse level only reparametrises the
+    atlas: what is baked is the sum at every texel (:meth:`fold_coarse`), so the bundle's format does not change.
+    Each coarse texel gathers the gradients of about f x f fine texels, so a flat surface whose fine texels see
+    few training samples each still converges.
 
     Attributes:
         data: (H, W, D) float32 parameter; ``data[j, i]`` is texel (i, j), centred at uv ((i+0.5)/W, (j+0.5)/H).
+        coarse: (H / f, W / f, D) float32 parameter (zeros at start), or None without a coarse level.
     """
 
     def __init__(self, height: int, width: int, dim: int, init_std: float = 1e-2,
-                 generator: torch.Generator | None = None) -> None:
+                 generator: torch.Generator | None = None, coarse_factor: int = 1, pages: int = 1) -> None:
         super().__init__()
         if height < 1 or width < 1 or dim < 1:
             raise ValueError(f"NeuralTexture needs positive sizes, got {height}x{width}x{dim}")
         self.height, self.width, self.dim = int(height), int(width), int(dim)
+        self.pages = int(pages)
         self.data = nn.Parameter(torch.randn(self.height, self.width, self.dim, generator=generator) * init_std)
+        self.coarse_factor = max(1, int(coarse_factor))
+        self.coarse = None
+        if self.coarse_factor > 1:
+            self.coarse_width = max(1, self.width // self.coarse_factor)
+            self.coarse_height = (self.pages * self.coarse_width if self.pages > 1
+                                  else max(1, self.height // self.coarse_factor))
+            self.coarse = nn.Parameter(torch.zeros(self.coarse_height, self.coarse_width, self.dim))
 
     @property
     def flat(self) -> torch.Tensor:
-        """(H*W, D) view of the texels, row-major (index j*W + i)."""
+        """(H*W, D) view of the fine texels, row-major (index j*W + i); without the coarse level."""
         return self.data.view(self.height * self.width, self.dim)
 
-    def gather(self, flat_idx: torch.Tensor, sparse_grad: bool = True) -> torch.Tensor:
-        """Texels at flat indices (any shape, values j*W + i) -> (*idx.shape, D).
+    def _coarse_at(self, flat_idx: torch.Tensor) -> torch.Tensor:
+        """The coarse level's bilinear lookup at the centres of fine texels ``flat_idx`` (N,) -> (N, D)."""
+        j = torch.div(flat_idx, self.width, rounding_mode="floor")
+        i = flat_idx - j * self.width
+        uv = torch.stack([(i.float() + 0.5) / self.width, (j.float() + 0.5) / self.height], dim=1)
+        idx, w = bilinear_corners(uv, self.coarse_height, self.coarse_width, self.pages)
+        corners = _DenseGather.apply(self.coarse, idx.reshape(-1)).view(*idx.shape, self.dim)
+        w = w.to(corners.dtype)
+        return (w[:, 0:1] * corners[:, 0] + w[:, 1:2] * corners[:, 1]
+                + w[:, 2:3] * corners[:, 2] + w[:, 3:4] * corners[:, 3])
 
-        With ``sparse_grad`` the gradient of ``data`` is a sparse COO tensor (sparse dims (j, i), dense D)
-        holding only the touched texels, for ``torch.optim.SparseAdam`` (lazy Adam: a step costs O(batch),
-        not O(H*W*D)).
+    def gather(self, flat_idx: torch.Tensor, sparse_grad: bool = True) -> torch.Tensor:
+        """Texel features (fine + coarse) at flat indices (any shape, values j*W + i) -> (*idx.shape, D).
+
+        With ``sparse_grad`` the gradient of ``data`` is a sparse COO tensor (sparse dims (j, i), dense D) holding
+        only the touched texels, for ``torch.optim.SparseAdam`` (lazy Adam: a step costs O(batch), not O(H*W*D)).
+        ``coarse`` (f² times smaller) always gets a dense gradient: coalescing a sparse one cost more than the
+        dense Adam step.
         """
         if sparse_grad and torch.is_grad_enabled() and self.data.requires_grad:
-            rows = _SparseGather.apply(self.data, flat_idx.reshape(-1))
-            return rows.view(*flat_idx.shape, self.dim)
-        return self.flat[flat_idx]
+            rows = _SparseGather.apply(self.data, flat_idx.reshape(-1)).view(*flat_idx.shape, self.dim)
+        else:
+            rows = self.flat[flat_idx]
+        if self.coarse is None:
+            return rows
+        uniq, inv = torch.unique(flat_idx.reshape(-1), return_inverse=True)
+        return rows + _DenseGather.apply(self._coarse_at(uniq), inv).view(*flat_idx.shape, self.dim)
+
+    @torch.no_grad()
+    def features_flat(self) -> torch.Tensor:
+        """(H*W, D) every texel's feature, fine + coarse (detached): what the atlas bakes to."""
+        flat = self.flat.detach()
+        if self.coarse is None:
+            return flat
+        out = flat.clone()
+        for start in range(0, flat.shape[0], _FOLD_CHUNK):        # a 4096² atlas at once would take gigabytes
+            rows = torch.arange(start, min(start + _FOLD_CHUNK, flat.shape[0]), device=flat.device)
+            out[rows] += self._coarse_at(rows)
+        return out
+
+    @torch.no_grad()
+    def fold_coarse(self) -> None:
+        """Add the coarse level into the fine texels and zero it: every feature stays the same, all in ``data``."""
+        if self.coarse is not None:
+            self.flat.copy_(self.features_flat())
+            self.coarse.zero_()
 
     def extra_repr(self) -> str:
         return f"height={self.height}, width={self.width}, dim={self.dim}"
@@ -120,3 +175,21 @@ class _SparseGather(torch.autograd.Function):
         h, w, d = ctx.shape
         ind = torch.stack([torch.div(idx, w, rounding_mode="floor"), idx % w])
         return torch.sparse_coo_tensor(ind, grad.contiguous(), (h, w, d), check_invariants=False), None
+
+
+class _DenseGather(torch.autograd.Function):
+    """rows = param.view(-1, D)[idx] with a dense gradient for param (..., D), the rows' gradients summed into it
+    with ``index_add_``."""
+
+    @staticmethod
+    def forward(ctx, param: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
+        ctx.save_for_backward(idx)
+        ctx.shape = tuple(param.shape)
+        return param.reshape(-1, param.shape[-1])[idx]
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
+        (idx,) = ctx.saved_tensors
+        d = ctx.shape[-1]
+        out = torch.zeros(math.prod(ctx.shape) // d, d, dtype=grad.dtype, device=grad.device)
+        return out.index_add_(0, idx, grad).view(ctx.shape), None

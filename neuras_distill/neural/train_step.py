@@ -73,18 +73,21 @@ class BatchLoss:
 
 class Optimisers:
     """The atlases (the mesh's and the skybox's) under ``SparseAdam`` on sparse gradients (a step costs O(batch),
-    not O(atlas); plain Adam when the model's gradients are dense) at ``texture_lr_scale * lr``; the MLPs and
-    codebooks under Adam at ``lr``. ``sparse`` and ``dense`` list the parameters by the kind of their gradient."""
+    not O(atlas); plain Adam when the model's gradients are dense) at ``texture_lr_scale * lr``, the atlas's
+    coarse level (dense gradients) under Adam at the same rate; the MLPs and codebooks under Adam at ``lr``.
+    ``sparse`` and ``dense`` list the parameters by the kind of their gradient."""
 
     def __init__(self, model: NeuralTextureModel, skybox, config: TrainConfig) -> None:
         tex_params = [model.texture.data]
+        texture_lr = config.texture_lr_scale * config.lr
         dense_groups = [{"params": list(model.shaders.parameters()), "lr": config.lr}]
+        if model.texture.coarse is not None:       # small, and its gradient is dense
+            dense_groups.append({"params": [model.texture.coarse], "lr": texture_lr})
         if model.vq is not None:
             dense_groups.append({"params": [model.vq.codebook], "lr": config.lr})
         if skybox is not None:
             tex_params.append(skybox.atlas.texture.data)
             dense_groups.append({"params": skybox.dense_parameters(), "lr": config.lr})
-        texture_lr = config.texture_lr_scale * config.lr
         self.texture = (torch.optim.SparseAdam(tex_params, lr=texture_lr) if model.sparse_grad
                         else torch.optim.Adam(tex_params, lr=texture_lr))
         self.mlp = torch.optim.Adam(dense_groups)

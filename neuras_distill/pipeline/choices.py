@@ -150,6 +150,30 @@ def fringe_shell(mode: str, opacity: np.ndarray, background: Background, record:
     return True
 
 
+def coarse_level(factor: int, plan, record: Decisions) -> int:
+    """The coarse feature level's factor (``texture.coarse_factor``; 1: none) for a training ``plan``
+    (``TrainingPlan``, steps fixed): kept when training gives each used texel fewer samples than
+    ``rules.TARGET_SAMPLES_PER_TEXEL`` (flat surfaces then converge in the coarse level), left out when it gives
+    them all (each texel converges on its own, and the level costs a fifth to a half more per step on a CPU)."""
+    if factor <= 1:
+        record.leave_out("coarse feature level", "turned off by configuration (texture.coarse_factor 1)")
+        return 1
+    if not plan.used_texels or not plan.steps:
+        record.keep("coarse feature level", f"a level {factor} times coarser under the atlas")
+        return int(factor)
+    per_texel = plan.steps * plan.samples_per_step / plan.used_texels
+    measured = dict(samples_per_texel=per_texel, used_texels=plan.used_texels)
+    if per_texel >= rules.TARGET_SAMPLES_PER_TEXEL:
+        record.leave_out("coarse feature level", f"training gives each of the {plan.used_texels} used texels "
+                         f"{per_texel:.0f} samples (at least {rules.TARGET_SAMPLES_PER_TEXEL}): each converges on "
+                         "its own", **measured)
+        return 1
+    record.keep("coarse feature level", f"training gives each of the {plan.used_texels} used texels {per_texel:.0f} "
+                f"samples (fewer than {rules.TARGET_SAMPLES_PER_TEXEL}): flat surfaces converge in a level "
+                f"{factor} times coarser under the atlas", factor=int(factor), **measured)
+    return int(factor)
+
+
 def facing_input(mesh, enclose: bool, record: Decisions) -> bool:
     """The facing cosine |n . d| as a shader input when the mesh has a shell enclosing a soft fringe (its
     grazing pixels fade with the angle; see ``neural/shader.py``); otherwise left out, with the reason."""

@@ -8,7 +8,7 @@ from ...neural.convergence import PlateauStop
 from ...neural.model import NeuralTextureModel
 from ...neural.train import fit
 from ...neural.train_checkpoint import TrainCheckpoint
-from .. import rules
+from .. import choices, rules
 from ..cache import digest
 from ..stage_results import (
     Backdrop,
@@ -56,13 +56,14 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
                                + ", "
                                f"{plan.steps} steps" + (f" (at most {plan.time_budget_s:.0f} s)"
                                                         if plan.time_budget_s else ""))
+    coarse = choices.coarse_level(t.coarse_factor, plan, ctx.decisions)
     model = NeuralTextureModel.for_atlas(t, height, side, pages=pages, mesh_layers=len(training.mesh.layers()),
                                          use_viewdir=inputs.use_viewdir, use_facing=inputs.use_facing,
-                                         core_viewdir=inputs.core_viewdir)
+                                         core_viewdir=inputs.core_viewdir, coarse_factor=coarse)
     skybox = backdrop.skybox
     key = digest("distill", ctx.keys["gbuffer"], ctx.keys["plan"], plan.steps, plan.time_budget_s,
                  settings(cfg.texture), settings(cfg.train, ("checkpoint_every_s",)), settings(cfg.skybox),
-                 inputs.use_viewdir, inputs.use_facing, inputs.core_viewdir, skybox is not None,
+                 inputs.use_viewdir, inputs.use_facing, inputs.core_viewdir, coarse, skybox is not None,
                  skybox.layers.to_json() if skybox is not None else None, backdrop.clear,
                  *(() if backdrop.sky_pixels is None else ("sky pixels", backdrop.sky_pixels)))
     checkpoint = (TrainCheckpoint(ctx.cache.work / "checkpoints" / f"distill-{key}.pt", key,
