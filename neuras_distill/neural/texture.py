@@ -177,15 +177,9 @@ class _SparseGather(torch.autograd.Function):
         return torch.sparse_coo_tensor(ind, grad.contiguous(), (h, w, d), check_invariants=False), None
 
 
-class _DenseGather(torch.autograd.Function):
-    """rows = param.view(-1, D)[idx] with a dense gradient for param (..., D), the rows' gradients summed into it
-    with ``index_add_``."""
-
-    @staticmethod
-    def forward(ctx, param: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
-        ctx.save_for_backward(idx)
-        ctx.shape = tuple(param.shape)
-        return param.reshape(-1, param.shape[-1])[idx]
+class _DenseGather(_SparseGather):
+    """rows = param.view(-1, D)[idx] (the same forward) with a dense gradient for param (..., D), the rows'
+    gradients summed into it with ``index_add_``."""
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
