@@ -141,7 +141,7 @@ class NeuralTexture(nn.Module):
     def features_flat(self) -> torch.Tensor:
         """(H*W, D) every texel's feature, fine + coarse (detached): what the atlas bakes to."""
         flat = self.flat.detach()
-        if self.coarse is None:
+        if self.coarse is None or not bool(self.coarse.any()):     # none, or folded in (a trained model's)
             return flat
         out = flat.clone()
         for start in range(0, flat.shape[0], _FOLD_CHUNK):        # a 4096² atlas at once would take gigabytes
