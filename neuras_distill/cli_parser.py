@@ -144,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frame sizes to score and time at (the held-out cameras' aspect ratio; default "
                         "640x360,1920x1080)")
     p.add_argument("--variants", default=None, metavar="NAME,...",
-                   help="bundle variants to distil (default all: atlas-half, atlas-double, mlp-8, mlp-32, "
+                   help="bundle variants to distil (default all: atlas-half, atlas-double, mlp-8, mlp-16, "
                         "mlp-two-hidden, no-view, no-vq, faces-quarter, faces-half)")
     p.add_argument("--target-ms", type=float, default=None,
                    help="frame time the recommendation aims at (default 16.7 ms, 60 Hz)")

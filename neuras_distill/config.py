@@ -166,9 +166,10 @@ class TextureConfig:
     trained texel keeps its own feature as its code (exact; the uint16 index holds 65535), which scores better
     than k-means at the cost of a larger codebook (docs/decisions.md "k-means only where it compresses").
     0: always k-means."""
-    hidden: int = 16
-    """Hidden units of the MLP shader (NeuRas uses 32). 16 keeps a 1080p frame cheap on software OpenGL; 32
-    scores better where the bundle plays on a GPU (the ``quality`` preset; docs/decisions.md "Shader width")."""
+    hidden: int = 32
+    """Hidden units of the MLP shader (as NeuRas). 32 scores better than 16 on every scene measured and trains
+    as fast on a CPU; on a GPU's deferred path shading is a small compute pass, and on software OpenGL a 1080p
+    frame costs more (docs/decisions.md "Shader width")."""
     shell_hidden: int = 32
     """Hidden units of the fringe shell's own MLP shader (a two-layer mesh, ``geometry.enclose_fringe``; 0: as
     ``hidden``). The shell draws a soft fringe's whole fade, a function of the view direction, the facing

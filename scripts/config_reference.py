@@ -93,7 +93,7 @@ def render() -> str:
         "",
         "```toml",
         "[texture]",
-        "hidden = 32",
+        "coarse_factor = 4",
         "",
         "[train]",
         "steps = 6000",

@@ -36,7 +36,7 @@ def test_resolutions_are_parsed_or_refused_in_one_line():
 
 
 def test_every_variant_pins_the_runs_training_and_changes_one_setting():
-    facts = RunFacts(side=256, steps=3000, face_budget=40000, hidden=16, num_layers=2)
+    facts = RunFacts(side=256, steps=3000, face_budget=40000, hidden=32, num_layers=2)
     changes = {v.name: variant_overrides(v, facts) for v in pick_variants(None)}
     assert len(changes) >= 6
     for name, c in changes.items():
@@ -49,9 +49,12 @@ def test_every_variant_pins_the_runs_training_and_changes_one_setting():
     # a variant that would be the run's own bundle is named as such (and skipped by the bench)
     same = {v.name: v.same_as_run(facts) for v in pick_variants(None)}
     assert not any(same.values())
-    without_view = RunFacts(side=256, steps=3000, face_budget=40000, hidden=16, num_layers=2, view_input=False)
+    without_view = RunFacts(side=256, steps=3000, face_budget=40000, hidden=32, num_layers=2, view_input=False)
     same = {v.name: v.same_as_run(without_view) for v in pick_variants(None)}
     assert [n for n, why in same.items() if why] == ["no-view"] and "already has no view input" in same["no-view"]
+    narrow = RunFacts(side=256, steps=3000, face_budget=40000, hidden=16, num_layers=2)
+    same = {v.name: v.same_as_run(narrow) for v in pick_variants(None)}
+    assert [n for n, why in same.items() if why] == ["mlp-16"] and "already 16 wide" in same["mlp-16"]
     with pytest.raises(BadInputError, match="unknown bench variant 'mlp-64'; available: atlas-half"):
         pick_variants(["mlp-8", "mlp-64"])
 

@@ -40,8 +40,9 @@ def test_presets_only_override():
     assert fast.train.lr == base.train.lr  # not mentioned in the preset: the default stands
     assert set(preset_names()) >= {"object", "fast", "quality"}
     assert load_config("object") == base
-    quality = load_config("quality")        # the width that pays on GPUs, training planned from texels
-    assert (quality.texture.hidden, quality.train.steps) == (32, 0) and base.texture.hidden == 16
+    quality = load_config("quality")        # wider features, training planned from texels
+    assert (quality.texture.feature_dim, quality.train.steps) == (12, 0) and base.texture.feature_dim == 8
+    assert base.texture.hidden == quality.texture.hidden == 32
 
 
 def test_bad_settings(tmp_path):

@@ -326,8 +326,8 @@ def test_fit_reaches_psnr_on_smooth_target():
 @pytest.mark.slow
 def test_fit_quantizes_after_training_by_default():
     """Default schedule: continuous features all along, k-means codes after the last step. On the same data
-    and seed it beats quantizing from 15 % of the run (measured 33.7 vs 29.7 dB with 64 codes), and the code
-    stats come from the texels' assignments."""
+    and seed it beats quantizing from 15 % of the run (measured 34.7 vs 33.7 dB with 64 codes and the
+    default 32-wide shader; 33.7 vs 29.7 at 16 wide), and the code stats come from the texels' assignments."""
     def trained(**kwargs):
         torch.manual_seed(0)
         data = synthetic_gbuffer()
@@ -339,7 +339,7 @@ def test_fit_quantizes_after_training_by_default():
     model, log, after = trained()
     _, early_log, early = trained(vq_warmup=0.15)
     assert log.vq_start_step == 250 and model.quantizing and early_log.vq_start_step < 50
-    assert after > 32 and after > early + 2, (after, early)
+    assert after > 33 and after > early + 0.5, (after, early)
     assert 0.2 < log.vq_stats["used_fraction"] <= 1.0 and log.vq_stats["perplexity"] > 10, log.vq_stats
 
 

@@ -124,7 +124,7 @@ def test_configuration_reference_is_generated_from_config():
     for section in ("cameras", "teacher", "geometry", "texture", "train", "eval", "skybox"):
         for name in vars(getattr(cfg, section)):
             assert f"**`{section}.{name}`**" in text, f"{section}.{name} is missing from the reference"
-    assert "**`texture.hidden`** (int, default `16`)" in text
+    assert "**`texture.hidden`** (int, default `32`)" in text
     assert (ROOT / "docs" / "configuration.md").read_text() == text, (
         "docs/configuration.md is out of date: run python scripts/config_reference.py")
 

@@ -44,7 +44,9 @@ VARIANTS = (
     Variant("atlas-half", "atlas side x1/2", lambda f: {"texture": {"resolution": max(16, f.side // 2)}}),
     Variant("atlas-double", "atlas side x2", lambda f: {"texture": {"resolution": min(8192, 2 * f.side)}}),
     Variant("mlp-8", "MLP hidden width 8", lambda f: {"texture": {"hidden": 8}}),
-    Variant("mlp-32", "MLP hidden width 32", lambda f: {"texture": {"hidden": 32}}),
+    Variant("mlp-16", "MLP hidden width 16", lambda f: {"texture": {"hidden": 16}},
+            lambda f: "the run's shader is already 16 wide: this variant would be the default bundle"
+            if f.hidden == 16 else None),
     Variant("mlp-two-hidden", "MLP with two hidden layers instead of one",
             lambda f: {"texture": {"num_layers": f.num_layers + 1}}),
     Variant("no-view", "no view-direction input", lambda f: {"texture": {"view_dependence": "off"}},
