@@ -175,6 +175,9 @@ class TextureConfig:
     ``hidden``). The shell draws a soft fringe's whole fade, a function of the view direction, the facing
     cosine and the colour under it, and only its pixels outside the core's silhouette run it
     (docs/decisions.md "Two layers, a shader each")."""
+    output_layers: int = 3
+    """Colour layers the MLP shader predicts and composites into rgb (NeuRas's rendering layers; each an rgb
+    and an opacity, the last opaque; docs/decisions.md "Composited output layers"). 1: one rgb."""
     num_layers: int = 2
     """Linear layers of the MLP shader (2: one hidden layer; a second hidden layer scored no better and costs
     about a fifth more frame time on software OpenGL)."""
@@ -316,6 +319,8 @@ class DistillConfig:
         require(0 <= t.normal_smoothing <= 1000,
                 f"texture.normal_smoothing must be in 0..1000 rounds, got {t.normal_smoothing}")
         require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
+        require(1 <= t.output_layers <= 8, f"texture.output_layers must be in 1..8 (1: one rgb), got "
+                                           f"{t.output_layers}")
         require(1 <= t.coarse_factor <= 64, f"texture.coarse_factor must be in 1..64 (1: no coarse level), got "
                                            f"{t.coarse_factor}")
         require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")

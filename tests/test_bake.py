@@ -19,10 +19,11 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0, use_facing=False, mesh_layers=1,
-               core_viewdir=None, shell_hidden=None):
+               core_viewdir=None, shell_hidden=None, output_layers=2):
     torch.manual_seed(seed)
     m = NeuralTextureModel(h, w, feature_dim=dim, num_codes=k, use_viewdir=use_viewdir, use_facing=use_facing,
-                           mesh_layers=mesh_layers, core_viewdir=core_viewdir, shell_hidden=shell_hidden)
+                           mesh_layers=mesh_layers, core_viewdir=core_viewdir, shell_hidden=shell_hidden,
+                           output_layers=output_layers)
     with torch.no_grad():
         m.texture.data.normal_(0.0, 1.0)
         for layer in (layer for shader in m.shaders for layer in shader.layers):
@@ -31,6 +32,11 @@ def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0, use_facing=Fal
     m.start_vq()
     m.eval()
     return m
+
+
+def b_header(model) -> str:
+    """The first comment line of the model's generated fragment shader (what it says about the MLP)."""
+    return generate_fragment_shader(model).splitlines()[1]
 
 
 def quad_mesh():
@@ -223,13 +229,15 @@ def gl_context():
     return moderngl, moderngl.create_context(standalone=True, backend="egl")
 
 
-@pytest.mark.parametrize("use_viewdir,dim,use_facing,max_rows", [(True, 8, False, None), (False, 6, False, None),
-                                                                 (True, 8, True, None), (False, 5, True, None),
-                                                                 (True, 8, False, 7), (False, 5, True, 3)])
+@pytest.mark.parametrize("use_viewdir,dim,use_facing,max_rows,output_layers",
+                         [(True, 8, False, None, 2), (False, 6, False, None, 2), (True, 8, True, None, 2),
+                          (False, 5, True, None, 2), (True, 8, False, 7, 2), (False, 5, True, 3, 2),
+                          (True, 8, False, None, 1), (True, 8, True, None, 3)])
 @pytest.mark.gl
-def test_glsl_parity_with_torch(use_viewdir, dim, use_facing, max_rows, monkeypatch, tmp_path):
+def test_glsl_parity_with_torch(use_viewdir, dim, use_facing, max_rows, output_layers, monkeypatch, tmp_path):
     moderngl, ctx = gl_context()
-    m = make_model(use_viewdir=use_viewdir, dim=dim, use_facing=use_facing)
+    m = make_model(use_viewdir=use_viewdir, dim=dim, use_facing=use_facing, output_layers=output_layers)
+    assert (f"({output_layers} layers composited)" in b_header(m)) == (output_layers > 1)
     if max_rows is not None:          # a codebook taller than the largest texture side: several codes per row
         import neuras_distill.bake.bundle as bundle_module
 

@@ -186,11 +186,26 @@ def test_perceptual_loss_absent_and_random_state_dict(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------------------------------ model
 def test_shader_shapes():
-    s = MLPShader(8, hidden=32, num_layers=3, use_viewdir=True)
+    s = MLPShader(8, hidden=32, num_layers=3, use_viewdir=True, output_layers=1)
     assert [l.weight.shape for l in s.layers] == [(32, 11), (32, 32), (3, 32)]
     out = s(torch.randn(5, 8), torch.randn(5, 3))
     assert out.shape == (5, 3) and out.min() > 0 and out.max() < 1
     assert MLPShader(8, use_viewdir=False).layers[0].in_features == 8
+
+
+def test_output_layers_are_composited_front_to_back_with_the_last_opaque():
+    torch.manual_seed(0)
+    s = MLPShader(6, hidden=16, use_viewdir=True, output_layers=3)
+    assert s.layers[-1].out_features == 12
+    feats, dirs = torch.randn(7, 6), torch.nn.functional.normalize(torch.randn(7, 3), dim=-1)
+    raw = s.layers[1](torch.relu(s.layers[0](torch.cat([feats, dirs], -1))))
+    c = torch.sigmoid(raw.view(7, 3, 4)[..., :3])
+    a = torch.sigmoid(raw.view(7, 3, 4)[..., 3])
+    a1, a2 = a[:, 0:1], a[:, 1:2]                               # the third layer's opacity is not used
+    expected = a1 * c[:, 0] + (1 - a1) * a2 * c[:, 1] + (1 - a1) * (1 - a2) * c[:, 2]
+    assert torch.allclose(s(feats, dirs), expected, atol=1e-6)
+    with pytest.raises(ValueError, match="output_layers"):
+        MLPShader(6, output_layers=0)
 
 
 def test_model_quantized_forward_equals_baked_lookup():

@@ -14,6 +14,8 @@ baseline's). The neural shader reproduces the torch forward pass:
   player compiles the source once per layer and draws each layer with its own program);
 - the MLP unrolled as ``mat4 * vec4`` blocks with the weights as float literals (9 significant digits, so every
   literal is exactly the float32 weight); all-zero blocks are skipped; ReLU = max(x, 0), sigmoid = 1/(1+exp(-x));
+  with ``MLPShader.output_layers`` K > 1, the last layer's K vec4s (rgb, opacity logit) are composited back to
+  front with ``mix``, in ``MLPShader``'s order;
 - the view direction ``normalize(v_world - u_cam_pos)`` only when the model uses it or the facing cosine
   (otherwise the shader declares no ``u_cam_pos`` at all), in a vec4 whose w is the facing cosine ``|n . d|`` when
   the model uses it (``MLPShader.use_facing``; n = ``normalize(v_normal)``, the interpolated vertex normal, as the
@@ -177,7 +179,15 @@ def _mlp_lines(out: list[str], shader, in_names: list[str], dim: int, c4: int, v
     for n, (w, b) in enumerate(layers):
         names = dense_lines(out, cols if n == 0 else w, b, names, f"a{n + 1}",
                             "none" if n == len(layers) - 1 else "relu", indent)
-    return f"1.0 / (1.0 + exp(-{names[0]}.xyz))"
+    if shader.output_layers == 1:
+        return f"1.0 / (1.0 + exp(-{names[0]}.xyz))"
+    # K colour layers, one vec4 each (rgb, opacity logit), composited back to front as MLPShader does
+    layer = f"{names[0]}_l"
+    out.append(f"{indent}vec3 {layer} = 1.0 / (1.0 + exp(-{names[-1]}.xyz));")
+    for k in range(len(names) - 2, -1, -1):
+        out.append(f"{indent}{layer} = mix({layer}, 1.0 / (1.0 + exp(-{names[k]}.xyz)), "
+                   f"1.0 / (1.0 + exp(-{names[k]}.w)));")
+    return layer
 
 
 def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
@@ -199,7 +209,9 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
         "#version 400 core",
         "// NeuRas neural texture shader: " + (f"{pages} pages of " if pages > 1 else "")
         + f"{tex_w}x{tex_h} atlas, D={dim}, MLP "
-        + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3" + (", view-dependent" if use_dir else "")
+        + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3"
+        + (f" ({model.shader.output_layers} layers composited)" if model.shader.output_layers > 1 else "")
+        + (", view-dependent" if use_dir else "")
         + (", facing" if use_facing else "")
         + (f", one MLP per mesh layer (the shell's {model.shaders[-1].hidden} wide)" if model.mesh_layers == 2 else ""),
         "in vec2 v_uv;",

@@ -60,6 +60,7 @@ class NeuralTextureModel(nn.Module):
         feature_dim: D channels per texel.
         num_codes: K codes of the codebook (used only when use_vq).
         hidden, num_layers: MLP shader size (num_layers Linear layers).
+        output_layers: colour layers each shader composites into rgb (``MLPShader``).
         use_viewdir: feed the view direction to the MLP.
         use_facing: also feed |n . d| (``MLPShader``); then ``dirs`` carry 4 columns (direction, facing).
         use_vq: quantize features (required to bake atlases with more than 65535 texels).
@@ -93,12 +94,13 @@ class NeuralTextureModel(nn.Module):
                   mesh_layers: int = 1, use_viewdir: bool = True, use_facing: bool = False,
                   core_viewdir: bool | None = None, coarse_factor: int | None = None) -> NeuralTextureModel:
         """The model the texture section ``config`` describes (feature_dim, num_codes, hidden, num_layers,
-        shell_hidden, quantize, quantize_above, coarse_factor unless the pipeline chose another) for a
+        output_layers, shell_hidden, quantize, quantize_above, coarse_factor unless the pipeline chose another) for a
         ``tex_height`` x ``tex_width`` atlas of ``pages`` pages, with the mesh's layers and the shader inputs the
         pipeline chose (arguments as for the constructor)."""
         return cls(tex_height, tex_width, feature_dim=config.feature_dim, num_codes=config.num_codes,
-                   hidden=config.hidden, num_layers=config.num_layers, use_viewdir=use_viewdir,
-                   use_vq=config.quantize, use_facing=use_facing, mesh_layers=mesh_layers, core_viewdir=core_viewdir,
+                   hidden=config.hidden, num_layers=config.num_layers, output_layers=config.output_layers,
+                   use_viewdir=use_viewdir, use_vq=config.quantize, use_facing=use_facing, mesh_layers=mesh_layers,
+                   core_viewdir=core_viewdir,
                    shell_hidden=config.shell_hidden, pages=pages, quantize_above=config.quantize_above,
                    coarse_factor=config.coarse_factor if coarse_factor is None else coarse_factor)
 
@@ -108,7 +110,8 @@ class NeuralTextureModel(nn.Module):
                  sparse_grad: bool = True, dead_after: int = 100, use_facing: bool = False,
                  mesh_layers: int = 1, core_viewdir: bool | None = None, shell_hidden: int | None = None,
                  pages: int = 1, quantize_above: int = _TEXTURE.quantize_above,
-                 coarse_factor: int = _TEXTURE.coarse_factor) -> None:
+                 coarse_factor: int = _TEXTURE.coarse_factor,
+                 output_layers: int = _TEXTURE.output_layers) -> None:
         super().__init__()
         self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
         self.pages = int(pages)
@@ -128,7 +131,7 @@ class NeuralTextureModel(nn.Module):
         widths = (int(hidden), int(shell_hidden or hidden))
         self.shaders = nn.ModuleList(MLPShader(self.feature_dim, hidden=widths[layer], num_layers=num_layers,
                                                use_viewdir=core_dir if layer == 0 else use_viewdir,
-                                               use_facing=use_facing)
+                                               use_facing=use_facing, output_layers=output_layers)
                                      for layer in range(mesh_layers))
         self.register_buffer("vq_active", torch.tensor(False))
         self.quantize_above = int(quantize_above)

@@ -204,7 +204,8 @@ class SkyboxModel(nn.Module):
         self.layers = layers
         h, w = layers.atlas_size
         self.atlas = NeuralTextureModel(h, w, feature_dim=feature_dim, num_codes=num_codes, hidden=1,
-                                        num_layers=1, use_viewdir=False, quantize_above=0,  # sky: always k-means
+                                        num_layers=1, output_layers=1, use_viewdir=False,
+                                        quantize_above=0,    # sky: always k-means
                                         coarse_factor=1)   # its atlas is six faces a layer side by side
         self.shader = SkyboxShader(feature_dim, hidden)
 

@@ -280,7 +280,8 @@ def probe_training_speed(texture: TextureConfig, train: TrainConfig, steps: int 
     gen = torch.Generator().manual_seed(0)
     n, h, w = 2, 4 * train.patch, 4 * train.patch
     model = NeuralTextureModel(side, side, feature_dim=texture.feature_dim, hidden=texture.hidden,
-                               num_layers=texture.num_layers, use_vq=False, coarse_factor=texture.coarse_factor)
+                               num_layers=texture.num_layers, output_layers=texture.output_layers, use_vq=False,
+                               coarse_factor=texture.coarse_factor)
     uv = torch.rand(n, h, w, 2, generator=gen)
     dirs = torch.nn.functional.normalize(torch.randn(n, h, w, 3, generator=gen), dim=-1)
     data = (uv, torch.ones(n, h, w, dtype=torch.bool), dirs, torch.rand(n, h, w, 3, generator=gen))
