@@ -87,7 +87,8 @@ def skyboxes(mode: str, coverage: np.ndarray, background: Background, record: De
 def sky_training_pixels(surface_depths: np.ndarray, coverage: np.ndarray, origins: np.ndarray,
                         dirs: np.ndarray, aabb, record: Decisions) -> np.ndarray:
     """(N, H, W) bool: the uncovered training pixels the skyboxes learn from: all but the near misses
-    (``rules.near_miss_pixels``: the field shows a surface inside its foreground box that the mesh missed).
+    (``rules.near_miss_pixels``: the field shows a surface, or its fringe, inside its foreground box that the
+    mesh missed). ``surface_depths`` (N, H, W): where the field's opacity reaches the level that counts.
     ``origins`` (N, 3), ``dirs`` (N, H, W, 3): the training rays. Leaving them out is recorded with their share
     of the pixels."""
     near = rules.near_miss_pixels(surface_depths, coverage, origins, dirs, aabb)
@@ -95,9 +96,9 @@ def sky_training_pixels(surface_depths: np.ndarray, coverage: np.ndarray, origin
     share = float(near.sum() / max(int(uncovered.sum()), 1))
     if near.any():
         record.leave_out("skybox training on near misses",
-                         f"{100 * share:.1f}% of the pixels the mesh misses show a surface inside the foreground "
-                         "box (parts thinner than the mesh resolves); trained into the skyboxes they would paint "
-                         "it over the sky seen from other views", near_miss_fraction=share,
+                         f"{100 * share:.1f}% of the pixels the mesh misses show a surface or its fringe inside the "
+                         "foreground box (parts thinner than the mesh resolves); trained into the skyboxes they "
+                         "would paint it over the sky seen from other views", near_miss_fraction=share,
                          near_miss_pixels=int(near.sum()))
     return uncovered & ~near
 

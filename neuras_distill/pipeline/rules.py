@@ -53,13 +53,16 @@ NEAR_MISS_BOX_MARGIN = 0.01
 
 def near_miss_pixels(surface_depths: np.ndarray, coverage: np.ndarray, origins: np.ndarray, dirs: np.ndarray,
                      aabb, margin: float = NEAR_MISS_BOX_MARGIN) -> np.ndarray:
-    """(N, H, W) bool: training pixels the mesh misses although the field shows an opaque surface inside its
-    foreground box there (a lamp arm thinner than a voxel, the fringe of a tree). Trained into the skyboxes, such
-    pixels paint foreground colours into the sky, where every other view sees them as smudges; they are left out
-    of the skyboxes' training instead.
+    """(N, H, W) bool: training pixels the mesh misses although the field shows a surface inside its foreground
+    box there (a lamp arm thinner than a voxel, the fringe of a tree). Trained into the skyboxes, such pixels
+    paint foreground colours into the sky, where every other view sees them as smudges; they are left out of the
+    skyboxes' training instead.
 
     Args:
-        surface_depths: (N, H, W) float32 ray distances where the field's opacity reaches 0.5 (0: never).
+        surface_depths: (N, H, W) float32 ray distances where the field's opacity reaches a level (0: never).
+            The pipeline passes the fringe level (``render.volume.FRINGE_OPACITY``, 5%), not 0.5: on the street
+            the half-transparent edges of tree crowns that the mesh leaves out trained the innermost skybox to
+            an opacity of 0.54 and painted a green disc into a held-out view's sky.
         coverage: (N, H, W) bool, pixels the mesh covers.
         origins: (N, 3) camera centres, dirs: (N, H, W, 3) unit ray directions, both in the field's world frame.
         aabb: the field's foreground box, (2, 3) or (6,) min and max corners (world frame).
