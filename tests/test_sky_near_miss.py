@@ -30,9 +30,27 @@ def test_near_misses_are_uncovered_pixels_whose_surface_lies_in_the_foreground_b
     depth[0, 2, :] = 5.0
     coverage = np.zeros((1, h, w), bool)
     coverage[0, 2, :] = True              # the mesh covers row 2
-    near = near_miss_pixels(depth, coverage, *_rays(h, w), torch.tensor([[-2.0, -2.0, -1.0], [2.0, 2.0, 1.0]]))
+    near = near_miss_pixels(depth, np.zeros_like(depth), coverage, *_rays(h, w),
+                            torch.tensor([[-2.0, -2.0, -1.0], [2.0, 2.0, 1.0]]))
     assert near.shape == (1, h, w) and near.dtype == bool
     assert near[0, 0].all() and not near[0, 1:].any()      # row 3: depth 0, the field shows nothing opaque
+
+
+def test_a_fringe_counts_as_a_near_miss_only_beside_the_mesh():
+    """Where the field only reaches its fringe opacity inside the box, the pixel is a near miss next to the mesh's
+    silhouette (a soft edge of a part the mesh holds) and sky far from it (haze the sky shows through)."""
+    h, w = 3, 100                          # reach: 2% of 100 = 2 pixels
+    surface = np.zeros((1, h, w), np.float32)
+    fringe = np.full((1, h, w), 5.0, np.float32)           # the fringe level is reached inside the box everywhere
+    coverage = np.zeros((1, h, w), bool)
+    coverage[0, :, :10] = True                             # the mesh covers the left columns
+    surface[0, 1, 80] = 5.0                                # one half-opaque pixel far from the mesh
+    near = near_miss_pixels(surface, fringe, coverage, *_rays(h, w),
+                            torch.tensor([[-2.0, -2.0, -1.0], [2.0, 2.0, 1.0]]))
+    assert near[0, :, 10:12].all()                         # within 2 pixels of the mesh
+    assert not near[0, :, 12:80].any() and not near[0, :, 81:].any()
+    assert near[0, 1, 80] and not near[0, 0, 80]           # 0.5 opacity counts anywhere
+    assert not near[0, :, :10].any()                       # covered pixels are never near misses
 
 
 def _train_sky(sky_pixels):

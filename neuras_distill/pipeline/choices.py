@@ -84,20 +84,21 @@ def skyboxes(mode: str, coverage: np.ndarray, background: Background, record: De
     return True, reason
 
 
-def sky_training_pixels(surface_depths: np.ndarray, coverage: np.ndarray, origins: np.ndarray,
-                        dirs: np.ndarray, aabb, record: Decisions) -> np.ndarray:
+def sky_training_pixels(surface_depths: np.ndarray, fringe_depths: np.ndarray, coverage: np.ndarray,
+                        origins: np.ndarray, dirs: np.ndarray, aabb, record: Decisions) -> np.ndarray:
     """(N, H, W) bool: the uncovered training pixels the skyboxes learn from: all but the near misses
-    (``rules.near_miss_pixels``: the field shows a surface, or its fringe, inside its foreground box that the
-    mesh missed). ``surface_depths`` (N, H, W): where the field's opacity reaches the level that counts.
-    ``origins`` (N, 3), ``dirs`` (N, H, W, 3): the training rays. Leaving them out is recorded with their share
-    of the pixels."""
-    near = rules.near_miss_pixels(surface_depths, coverage, origins, dirs, aabb)
+    (``rules.near_miss_pixels``: the field shows a surface, or the fringe of one beside the mesh, inside its
+    foreground box that the mesh missed). ``surface_depths``, ``fringe_depths`` (N, H, W): where the field's
+    opacity reaches 0.5 and the fringe level. ``origins`` (N, 3), ``dirs`` (N, H, W, 3): the training rays.
+    Leaving them out is recorded with their share of the pixels."""
+    near = rules.near_miss_pixels(surface_depths, fringe_depths, coverage, origins, dirs, aabb)
     uncovered = ~coverage
     share = float(near.sum() / max(int(uncovered.sum()), 1))
     if near.any():
         record.leave_out("skybox training on near misses",
-                         f"{100 * share:.1f}% of the pixels the mesh misses show a surface or its fringe inside the "
-                         "foreground box (parts thinner than the mesh resolves); trained into the skyboxes they "
+                         f"{100 * share:.1f}% of the pixels the mesh misses show a surface, or a soft edge beside "
+                         "the mesh, inside the foreground box (parts thinner than the mesh resolves); trained into "
+                         "the skyboxes they "
                          "would paint it over the sky seen from other views", near_miss_fraction=share,
                          near_miss_pixels=int(near.sum()))
     return uncovered & ~near
