@@ -49,8 +49,8 @@ class CameraConfig:
     extra_views: Mode = "auto"
     """Add training views near the training cameras, rendered by the field (``render/extra_views.py``): "auto"
     when the mesh gets a soft-fringe shell (its colours change with the view direction) and every camera looks
-    at the scene from outside its box (a drive through a street has its lane shifts instead); "on", "off".
-    Held-out cameras are never used (``choices.extra_views``)."""
+    at the scene from outside its box; "on" (cameras inside the box, a drive: views along their path,
+    ``extra_views.path_views``), "off". Held-out cameras are never used (``choices.extra_views``)."""
     extra_views_fraction: float = 0.5
     """Extra views as a fraction of the training views."""
     extra_views_deg: float = 10.0

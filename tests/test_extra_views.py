@@ -11,7 +11,7 @@ import torch
 
 from neuras_distill.pipeline.choices import Decisions, extra_views as choose_extra_views
 from neuras_distill.render.cameras import Cameras, look_at
-from neuras_distill.render.extra_views import extra_views, inside_box, look_at_distances
+from neuras_distill.render.extra_views import extra_views, inside_box, look_at_distances, path_views
 from neuras_distill.render.volume import VolumeRenderer
 from neuras_distill.scenes.analytic import SphereSDF
 
@@ -54,6 +54,31 @@ def test_no_extra_views_without_a_look_at_point():
     reach = float(np.linalg.norm(cams.centers[1].double().numpy()))       # camera 1 looks at the origin
     only = extra_views(cams, np.array([np.inf, reach, np.inf, np.inf]), 3, 10.0)
     np.testing.assert_allclose(np.linalg.norm(only.centers.double().numpy(), axis=1), reach, rtol=1e-5)
+
+
+def _drive(n: int = 10, spacing: float = 8.0, size: int = 32) -> Cameras:
+    """``n`` cameras along the x axis, ``spacing`` apart, 1.6 up, looking ahead (+x), z up."""
+    poses = [look_at(torch.tensor([k * spacing, 0.0, 1.6]), torch.tensor([k * spacing + 10.0, 0.0, 1.6]),
+                     torch.tensor([0.0, 0.0, 1.0])) for k in range(n)]
+    return Cameras(torch.stack(poses).float(), 20.0, 20.0, size / 2, size / 2, size, size)
+
+
+def test_path_views_lie_between_neighbouring_cameras_turned_within_the_angle():
+    cams = _drive()
+    extra = path_views(cams, 40, 10.0, seed=1)
+    assert len(extra) == 40 and (extra.width, extra.height) == (cams.width, cams.height)
+    centres = extra.centers.double().numpy()
+    np.testing.assert_allclose(centres[:, 1:], np.tile([0.0, 1.6], (40, 1)), atol=1e-5)     # on the path
+    offset = np.mod(centres[:, 0], 8.0)
+    assert np.all((offset >= 2.0 - 1e-4) & (offset <= 6.0 + 1e-4))     # 25-75% of the way to a neighbour
+    assert 0.0 < centres[:, 0].min() and centres[:, 0].max() < 72.0
+    forward = -extra.c2w[:, :3, 2].double().numpy()
+    turned = [_angle_deg(f, np.array([1.0, 0.0, 0.0])) for f in forward]
+    assert max(turned) <= 10.0 + 1e-3 and max(turned) > 6.0
+    right = extra.c2w[:, :3, 0].double().numpy()
+    assert np.abs(right[:, 2]).max() < 0.2                              # turned in yaw and pitch, no roll
+    assert torch.equal(path_views(cams, 40, 10.0, seed=1).c2w, extra.c2w)
+    assert path_views(cams, 0, 10.0) is None and path_views(cams[[0]], 5, 10.0) is None
 
 
 def test_look_at_distances_find_the_surface():

@@ -195,7 +195,8 @@ def extra_views(mode: str, inside: np.ndarray, fringe_shell: bool, train: int, f
     :func:`fringe_shell` on a sample of the training views): the shell's colours change with the view direction,
     and off the capture's path nothing else constrains them (the NGP ball: 37.19 -> 38.77 dB). Without a shell
     the views cost accuracy on the path (the demo bunny: 38.27 -> 36.88 dB) and gained nothing off it (15 degrees
-    off: 34.80 against 34.64). "on" / "off" as configured."""
+    off: 34.80 against 34.64). "on" / "off" as configured ("on" with cameras inside the box: views along their
+    path, ``extra_views.path_views``)."""
     count = int(round(fraction * train))
     if mode == "off" or count == 0:
         record.leave_out("extra training views", "turned off by configuration" if mode == "off"
@@ -204,7 +205,8 @@ def extra_views(mode: str, inside: np.ndarray, fringe_shell: bool, train: int, f
     if mode == "auto" and inside.any():
         record.leave_out("extra training views", f"{int(inside.sum())} of {inside.size} cameras are inside the "
                          "field's box (a path through the scene, not around an object): views turned about their "
-                         "look-at points would leave the path", cameras_inside=int(inside.sum()))
+                         "look-at points would leave the path (cameras.extra_views = \"on\" adds views along it)",
+                         cameras_inside=int(inside.sum()))
         return 0
     if mode == "auto" and not fringe_shell:
         record.leave_out("extra training views", "the mesh gets no soft-fringe shell: its colours need no views "

@@ -54,7 +54,8 @@ def with_extra_views(ctx: RunContext, train: Cameras, cameras: Cameras) -> Camer
     will get a fringe shell is judged as the geometry stage judges it (the threshold scales with the views'
     width) on at most 8 of the training views at half their width (a sixteenth of the teacher's work at most:
     the nerfstudio fixture's field took 68 s for 8 views at full width), the look-at distances from a
-    32-pixel-wide render of each; the views seeded by ``train.seed``."""
+    32-pixel-wide render of each; the views seeded by ``train.seed``. Cameras inside the field's box (a path
+    through the scene) get views along their path (``extra_views.path_views``) when turned "on"."""
     from ...render import extra_views
 
     c = ctx.cfg.cameras
@@ -62,6 +63,9 @@ def with_extra_views(ctx: RunContext, train: Cameras, cameras: Cameras) -> Camer
     if c.extra_views == "off" or (c.extra_views == "auto" and inside.any()):
         choices.extra_views(c.extra_views, inside, False, len(train), c.extra_views_fraction, ctx.decisions)
         return train
+    if inside.any():                # "on" for a path through the scene: views along it, not turned off it
+        count = choices.extra_views(c.extra_views, inside, False, len(train), c.extra_views_fraction, ctx.decisions)
+        return train.joined(extra_views.path_views(train, count, c.extra_views_deg, ctx.cfg.train.seed))
     probe = ctx.volume_renderer
     shell = False
     if c.extra_views == "auto":
