@@ -98,8 +98,7 @@ def sky_training_pixels(surface_depths: np.ndarray, fringe_depths: np.ndarray, c
         record.leave_out("skybox training on near misses",
                          f"{100 * share:.1f}% of the pixels the mesh misses show a surface, or a soft edge beside "
                          "the mesh, inside the foreground box (parts thinner than the mesh resolves); trained into "
-                         "the skyboxes they "
-                         "would paint it over the sky seen from other views", near_miss_fraction=share,
+                         "the skyboxes they would paint it over the sky seen from other views", near_miss_fraction=share,
                          near_miss_pixels=int(near.sum()))
     return uncovered & ~near
 

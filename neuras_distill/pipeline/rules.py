@@ -87,12 +87,10 @@ def near_miss_pixels(surface_depths: np.ndarray, fringe_depths: np.ndarray, cove
     reach = fringe_reach * coverage.shape[2]
     out = np.zeros(coverage.shape, dtype=bool)
     for i in range(coverage.shape[0]):
-        surface = surface_depths[i].astype(np.float64)
-        depth = np.where(surface > 0, surface, 0.0)
+        depth = surface_depths[i].astype(np.float64)
         if coverage[i].any():
             near_mesh = ndimage.distance_transform_edt(~coverage[i]) <= reach
-            fringe_only = (surface <= 0) & near_mesh
-            depth = np.where(fringe_only, fringe_depths[i].astype(np.float64), depth)
+            depth = np.where((depth <= 0) & near_mesh, fringe_depths[i].astype(np.float64), depth)
         candidates = ~coverage[i] & (depth > 0)
         if not candidates.any():
             continue
