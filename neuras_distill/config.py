@@ -21,6 +21,8 @@ Mode = Literal["auto", "on", "off"]
 CoreLevel = Literal["colour", "surface"]
 #: Where the shell around a colour-level core comes from (``GeometryConfig.shell``).
 ShellSource = Literal["offset", "level"]
+#: What the shader's direction input is (``TextureConfig.view_input``).
+ViewInput = Literal["auto", "direction", "reflection"]
 #: Where a density field's mesh comes from (``GeometryConfig.surface``).
 SurfaceSource = Literal["auto", "depths"]
 #: Largest mesh the UV unwrap accepts (xatlas's time grows faster than linearly; larger face budgets are refused
@@ -185,6 +187,13 @@ class TextureConfig:
     """"auto" (measure the field and drop the view direction when colour does not depend on it), "on", "off"."""
     view_threshold: float = 0.01
     """Mean colour change (0..1) over view directions below which "auto" drops the view direction."""
+    view_input: ViewInput = "auto"
+    """The shader's direction input where it takes one: "direction" (the view direction, as NeuRas),
+    "reflection" (the view direction reflected about the shading normal, ``MeshData.vertex_normals``: a
+    highlight is then one function of that direction over the whole surface instead of one per texel), or
+    "auto" (the reflection on a one-layer mesh whose normals are smooth enough,
+    ``rules.REFLECTION_MAX_ROUGHNESS_DEG``; else the direction; docs/decisions.md "The reflected view
+    direction")."""
     normal_smoothing: int = 20
     """Rounds of one-ring averaging of the shading normals when the shader takes the facing cosine (a mesh with a
     fringe shell; ``MeshData.normal_smoothing``) and the normals are rough (``rules.ROUGH_NORMALS_DEG``): a
@@ -327,6 +336,7 @@ class DistillConfig:
         require(0 <= t.quantize_above <= 65535, f"texture.quantize_above must be in 0..65535 texels (what the uint16 "
                 f"index holds; 0: always k-means), got {t.quantize_above}")
         _require_choice(t.view_dependence, Mode, "view_dependence")
+        _require_choice(t.view_input, ViewInput, "view_input")
         require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
         require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")
         require(tr.time_budget_s >= 0,

@@ -10,7 +10,7 @@ import torch
 
 from neuras_distill.bake.bundle import bake, load_bundle
 from neuras_distill.bake.glsl import generate_fragment_shader, glsl_float
-from neuras_distill.neural.model import NeuralTextureModel
+from neuras_distill.neural.model import NeuralTextureModel, reflected_directions
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
 
@@ -19,11 +19,11 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def make_model(use_viewdir=True, dim=8, h=12, w=20, k=32, seed=0, use_facing=False, mesh_layers=1,
-               core_viewdir=None, shell_hidden=None, output_layers=2):
+               core_viewdir=None, shell_hidden=None, output_layers=2, view_reflect=False):
     torch.manual_seed(seed)
     m = NeuralTextureModel(h, w, feature_dim=dim, num_codes=k, use_viewdir=use_viewdir, use_facing=use_facing,
                            mesh_layers=mesh_layers, core_viewdir=core_viewdir, shell_hidden=shell_hidden,
-                           output_layers=output_layers)
+                           output_layers=output_layers, view_reflect=view_reflect)
     with torch.no_grad():
         m.texture.data.normal_(0.0, 1.0)
         for layer in (layer for shader in m.shaders for layer in shader.layers):
@@ -152,6 +152,17 @@ def test_bake_needs_uvs_and_vq_for_big_atlas():
         big.baked_features()
 
 
+def test_the_reflected_view_input_mirrors_the_direction_about_the_normal_on_covered_pixels_only():
+    from neuras_distill.neural.model import view_inputs
+
+    d = np.float32([[[0.6, 0.0, -0.8], [0.6, 0.0, -0.8]]])
+    n = np.float32([[[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]])
+    out = view_inputs(d, np.array([[3, -1]]), n, use_facing=True, reflect=True)
+    assert np.allclose(out[0, 0], [0.6, 0.0, 0.8, 0.8])        # reflected, facing |n . d| unchanged
+    assert np.allclose(out[0, 1], [0.6, 0.0, -0.8, 0.0])       # no face: the ray's own direction (skyboxes)
+    assert np.allclose(view_inputs(d, np.array([[3, -1]]), n, use_facing=False), d)
+
+
 def test_shader_has_no_viewdir_code_when_unused():
     src = generate_fragment_shader(make_model(use_viewdir=False))
     assert "u_cam_pos" not in src and "v_world" not in src and "normalize" not in src
@@ -229,14 +240,18 @@ def gl_context():
     return moderngl, moderngl.create_context(standalone=True, backend="egl")
 
 
-@pytest.mark.parametrize("use_viewdir,dim,use_facing,max_rows,output_layers",
-                         [(True, 8, False, None, 2), (False, 6, False, None, 2), (True, 8, True, None, 2),
-                          (False, 5, True, None, 2), (True, 8, False, 7, 2), (False, 5, True, 3, 2),
-                          (True, 8, False, None, 1), (True, 8, True, None, 3)])
+@pytest.mark.parametrize("use_viewdir,dim,use_facing,max_rows,output_layers,reflect",
+                         [(True, 8, False, None, 2, False), (False, 6, False, None, 2, False),
+                          (True, 8, True, None, 2, False), (False, 5, True, None, 2, False),
+                          (True, 8, False, 7, 2, False), (False, 5, True, 3, 2, False),
+                          (True, 8, False, None, 1, False), (True, 8, True, None, 3, False),
+                          (True, 8, False, None, 3, True), (True, 8, True, None, 2, True)])
 @pytest.mark.gl
-def test_glsl_parity_with_torch(use_viewdir, dim, use_facing, max_rows, output_layers, monkeypatch, tmp_path):
+def test_glsl_parity_with_torch(use_viewdir, dim, use_facing, max_rows, output_layers, reflect, monkeypatch,
+                                tmp_path):
     moderngl, ctx = gl_context()
-    m = make_model(use_viewdir=use_viewdir, dim=dim, use_facing=use_facing, output_layers=output_layers)
+    m = make_model(use_viewdir=use_viewdir, dim=dim, use_facing=use_facing, output_layers=output_layers,
+                   view_reflect=reflect)
     assert (f"({output_layers} layers composited)" in b_header(m)) == (output_layers > 1)
     if max_rows is not None:          # a codebook taller than the largest texture side: several codes per row
         import neuras_distill.bake.bundle as bundle_module
@@ -270,9 +285,15 @@ def test_glsl_parity_with_torch(use_viewdir, dim, use_facing, max_rows, output_l
         ctx.release()
     # torch reference on the same uv / dirs (row r of the readback is t.y = (r + 0.5) / res)
     uv, dirs, tx, ty = quad_view_dirs(uv0, uv_scale, res, cam)
-    if use_facing:              # the shading normal varies over the quad (VERT's v_normal, normalized per pixel)
-        n = np.stack([0.3 * (2 * tx - 1), np.ones_like(tx), 0.2 * (2 * ty - 1)], -1)
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    # the shading normal varies over the quad (VERT's v_normal, normalized per pixel)
+    n = np.stack([0.3 * (2 * tx - 1), np.ones_like(tx), 0.2 * (2 * ty - 1)], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    if reflect:
+        assert "reflect(dir, nrm)" in b.fragment_shader and b.manifest["view_input"] == "reflection"
+        plain = m.render_gbuffer(uv, np.ones((res, res), bool), dirs, np.zeros(3))
+        assert np.abs(plain - gl).max() > 1e-2           # the reflected direction changes the picture
+        dirs = reflected_directions(dirs, n, np.ones((res, res), bool))
+    if use_facing:
         dirs = np.concatenate([dirs, np.abs((n * dirs).sum(-1, keepdims=True))], axis=-1).astype(np.float32)
         no_facing = m.render_gbuffer(uv, np.ones((res, res), bool), np.concatenate([dirs[..., :3], 0 * dirs[..., 3:]], -1),
                                      np.zeros(3))

@@ -127,3 +127,23 @@ def test_only_rough_normals_under_a_facing_input_are_smoothed():
     entries = [d for d in record.to_json() if d["component"] == "smoothed shading normals"]
     assert [d["kept"] for d in entries] == [True, False]
     assert entries[0]["measured"]["normal_roughness_deg"] > ROUGH_NORMALS_DEG
+
+
+def test_auto_reflects_the_view_direction_about_smooth_normals_only():
+    from neuras_distill.pipeline.choices import Decisions, reflected_view_input
+
+    smooth, rough = two_spheres(core_faces=False), bumpy(two_spheres(core_faces=False), amplitude=0.4)
+    cfg = DistillConfig()
+    assert cfg.texture.view_input == "auto"
+    record = Decisions()
+    on, smooth_turn = reflected_view_input(smooth, cfg, True, False, record)
+    off, rough_turn = reflected_view_input(rough, cfg, True, False, record)
+    assert on and not off, (smooth_turn, rough_turn)
+    assert smooth_turn < 20.0 < rough_turn
+    assert [d.kept for d in record.items] == [True, False]
+    assert reflected_view_input(smooth, cfg, True, True, record) == (False, None)       # a fringe shell
+    assert reflected_view_input(smooth, cfg, False, False, record) == (False, None)     # no direction input
+    cfg.texture.view_input = "direction"
+    assert reflected_view_input(smooth, cfg, True, False, record) == (False, None)
+    cfg.texture.view_input = "reflection"
+    assert reflected_view_input(rough, cfg, True, False, record) == (True, None)

@@ -6,7 +6,9 @@ Owns: :class:`Bundle`, :func:`bake`, :func:`load_bundle`, :func:`float16_feature
                          single-layer mesh, else the number of core faces (faces[:core_faces] the core,
                          the rest the shell; see ``MeshData.core_faces``); a missing key reads as null;
                          ``shaders``: 2 when the fragment shader holds one MLP per layer (picked by ``u_layer``);
-                         ``normal_smoothing``: rounds of the shading normals' smoothing (absent: 0)
+                         ``normal_smoothing``: rounds of the shading normals' smoothing (absent: 0);
+                         ``view_input``: "direction" or "reflection" (the direction the shader feeds its MLP,
+                         computed in ``shader.frag``; absent: "direction")
     mesh.npz             float32 vertices (V,3), float32 uvs (V,2), int32 faces (F,3)
     feature_index.png    16-bit grayscale PNG of the (H, W) code indices (row 0 = v = 0, i.e. the image
                          looks upside down in a viewer), lossless; an atlas in ``atlas_pages`` P > 1 pages
@@ -335,6 +337,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
         "num_codes_trained": int(model.num_codes) if model.quantizing else 0,
         "use_vq": bool(model.quantizing), "use_viewdir": bool(model.use_viewdir),
         "use_facing": bool(model.use_facing),
+        "view_input": "reflection" if getattr(model, "view_reflect", False) else "direction",
         "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
         "shell_mlp_hidden": int(model.shaders[-1].hidden) if model.mesh_layers == 2 else None,
         "shaders": int(model.mesh_layers),

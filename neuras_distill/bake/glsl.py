@@ -20,7 +20,8 @@ baseline's). The neural shader reproduces the torch forward pass:
   (otherwise the shader declares no ``u_cam_pos`` at all), in a vec4 whose w is the facing cosine ``|n . d|`` when
   the model uses it (``MLPShader.use_facing``; n = ``normalize(v_normal)``, the interpolated vertex normal, as the
   G-buffer hands torch in ``GBuffer.normal``: smooth across faces, where the face normal made a fringe's fade
-  faceted).
+  faceted); with ``model.view_reflect`` the direction in that vec4 is ``reflect(dir, n)`` (``view_inputs``'s
+  reflection about the same normal).
 
 Unrolled mat4/vec4 arithmetic compiles in well under a second on Mesa llvmpipe and vectorises there.
 """
@@ -203,6 +204,7 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
     c4 = (dim + 3) // 4
     use_dir = any(bool(s.use_viewdir) for s in model.shaders)
     use_facing = bool(model.use_facing)
+    use_reflect = use_dir and bool(getattr(model, "view_reflect", False))
     layers = model.shader.weights()      # the core's (a shell's shader may be wider: ``shell_hidden``)
 
     out: list[str] = [
@@ -211,14 +213,14 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
         + f"{tex_w}x{tex_h} atlas, D={dim}, MLP "
         + " -> ".join(str(w.shape[1]) for w, _ in layers) + " -> 3"
         + (f" ({model.shader.output_layers} layers composited)" if model.shader.output_layers > 1 else "")
-        + (", view-dependent" if use_dir else "")
+        + (", view-dependent" if use_dir else "") + (" (reflected direction)" if use_reflect else "")
         + (", facing" if use_facing else "")
         + (f", one MLP per mesh layer (the shell's {model.shaders[-1].hidden} wide)" if model.mesh_layers == 2 else ""),
         "in vec2 v_uv;",
     ]
     if use_dir or use_facing:
         out += ["in vec3 v_world;", "uniform vec3 u_cam_pos;"]
-    if use_facing:
+    if use_facing or use_reflect:
         out.append("in vec3 v_normal;")
     if model.mesh_layers == 2:
         out += ["#ifndef MESH_LAYER",
@@ -233,11 +235,15 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
     ]
     in_names = bilinear_feature_lines(out, "v_uv", tex_w, tex_h, "u_index", "u_codebook", c4, "a0", "    ",
                                       codes_per_row, pages)
-    if use_facing:
+    if use_facing or use_reflect:
+        shown = "reflect(dir, nrm)" if use_reflect else "dir"
         out += ["    vec3 dir = normalize(v_world - u_cam_pos);",
-                "    vec3 nrm = normalize(v_normal);",
-                "    float facing = abs(dot(nrm, dir));",
-                "    vec4 a0_d = " + ("vec4(dir, facing);" if use_dir else "vec4(facing, 0.0, 0.0, 0.0);")]
+                "    vec3 nrm = normalize(v_normal);"]
+        if use_facing:
+            out += ["    float facing = abs(dot(nrm, dir));",
+                    "    vec4 a0_d = " + (f"vec4({shown}, facing);" if use_dir else "vec4(facing, 0.0, 0.0, 0.0);")]
+        else:
+            out.append(f"    vec4 a0_d = vec4({shown}, 0.0);")
         in_names.append("a0_d")
     elif use_dir:
         out.append("    vec4 a0_d = vec4(normalize(v_world - u_cam_pos), 0.0);")

@@ -30,11 +30,14 @@ from neuras_distill.neural.vq import VectorQuantizer
 _TEXTURE = TextureConfig()
 
 
-def view_inputs(dirs, face_id, normals, use_facing: bool, core_faces: int | None = None) -> np.ndarray:
+def view_inputs(dirs, face_id, normals, use_facing: bool, core_faces: int | None = None,
+                reflect: bool = False) -> np.ndarray:
     """The MLP's view input per pixel: (..., 3) unit directions; with ``use_facing`` (..., 4) with ``|n . d|``
     appended (n: the pixel's shading normal, ``GBuffer.normal``; 0 where no face covers the pixel); with
     ``core_faces`` (a two-layer mesh, ``MeshData.core_faces``) one more column, the pixel's mesh layer (0 core,
-    1 shell), which picks the shader (:class:`NeuralTextureModel` with ``mesh_layers=2``).
+    1 shell), which picks the shader (:class:`NeuralTextureModel` with ``mesh_layers=2``). With ``reflect``
+    the direction columns of covered pixels are ``d - 2 (n . d) n``, the direction reflected about the shading
+    normal (GLSL's ``reflect(d, n)``); uncovered pixels keep ``d`` (the skyboxes read them).
 
     Args:
         dirs: (..., 3) float32 unit view directions (camera to surface).
@@ -43,13 +46,21 @@ def view_inputs(dirs, face_id, normals, use_facing: bool, core_faces: int | None
     """
     dirs = np.asarray(dirs, dtype=np.float32)
     face_id = np.asarray(face_id)
-    columns = [dirs]
+    columns = [reflected_directions(dirs, normals, face_id >= 0) if reflect else dirs]
     if use_facing:
         facing = np.abs(np.einsum("...i,...i->...", np.asarray(normals, np.float32), dirs))
         columns.append(np.where(face_id >= 0, facing, 0.0).astype(np.float32)[..., None])
     if core_faces is not None:
         columns.append((face_id >= int(core_faces)).astype(np.float32)[..., None])
     return columns[0] if len(columns) == 1 else np.concatenate(columns, axis=-1)
+
+
+def reflected_directions(dirs: np.ndarray, normals, covered: np.ndarray) -> np.ndarray:
+    """(..., 3) float32: ``dirs`` reflected about the unit ``normals`` (..., 3) where ``covered`` (...), else
+    ``dirs`` unchanged."""
+    n = np.asarray(normals, np.float32)
+    reflected = dirs - 2.0 * np.einsum("...i,...i->...", n, dirs)[..., None] * n
+    return np.where(covered[..., None], reflected, dirs).astype(np.float32)
 
 
 class NeuralTextureModel(nn.Module):
@@ -63,6 +74,9 @@ class NeuralTextureModel(nn.Module):
         output_layers: colour layers each shader composites into rgb (``MLPShader``).
         use_viewdir: feed the view direction to the MLP.
         use_facing: also feed |n . d| (``MLPShader``); then ``dirs`` carry 4 columns (direction, facing).
+        view_reflect: the direction columns of ``dirs`` are the view direction reflected about the shading
+            normal (:func:`view_inputs` with ``reflect``; the baked shader computes the same). The model only
+            records it: its forward pass reads the columns whatever they hold.
         use_vq: quantize features (required to bake atlases with more than 65535 texels).
         sparse_grad: texture gradients as sparse tensors (train the texture with SparseAdam).
         mesh_layers: 2 for a two-layer mesh (``MeshData.core_faces``): the core and the shell get a shader each
@@ -92,7 +106,8 @@ class NeuralTextureModel(nn.Module):
     @classmethod
     def for_atlas(cls, config: TextureConfig, tex_height: int, tex_width: int, *, pages: int = 1,
                   mesh_layers: int = 1, use_viewdir: bool = True, use_facing: bool = False,
-                  core_viewdir: bool | None = None, coarse_factor: int | None = None) -> NeuralTextureModel:
+                  core_viewdir: bool | None = None, coarse_factor: int | None = None,
+                  view_reflect: bool = False) -> NeuralTextureModel:
         """The model the texture section ``config`` describes (feature_dim, num_codes, hidden, num_layers,
         output_layers, shell_hidden, quantize, quantize_above, coarse_factor unless the pipeline chose another) for a
         ``tex_height`` x ``tex_width`` atlas of ``pages`` pages, with the mesh's layers and the shader inputs the
@@ -100,7 +115,7 @@ class NeuralTextureModel(nn.Module):
         return cls(tex_height, tex_width, feature_dim=config.feature_dim, num_codes=config.num_codes,
                    hidden=config.hidden, num_layers=config.num_layers, output_layers=config.output_layers,
                    use_viewdir=use_viewdir, use_vq=config.quantize, use_facing=use_facing, mesh_layers=mesh_layers,
-                   core_viewdir=core_viewdir,
+                   core_viewdir=core_viewdir, view_reflect=view_reflect,
                    shell_hidden=config.shell_hidden, pages=pages, quantize_above=config.quantize_above,
                    coarse_factor=config.coarse_factor if coarse_factor is None else coarse_factor)
 
@@ -111,7 +126,7 @@ class NeuralTextureModel(nn.Module):
                  mesh_layers: int = 1, core_viewdir: bool | None = None, shell_hidden: int | None = None,
                  pages: int = 1, quantize_above: int = _TEXTURE.quantize_above,
                  coarse_factor: int = _TEXTURE.coarse_factor,
-                 output_layers: int = _TEXTURE.output_layers) -> None:
+                 output_layers: int = _TEXTURE.output_layers, view_reflect: bool = False) -> None:
         super().__init__()
         self.tex_height, self.tex_width, self.feature_dim = int(tex_height), int(tex_width), int(feature_dim)
         self.pages = int(pages)
@@ -120,6 +135,7 @@ class NeuralTextureModel(nn.Module):
                              f"{self.tex_height} x {self.tex_width}")
         self.hidden, self.num_layers = int(hidden), int(num_layers)
         self.use_viewdir, self.use_vq, self.sparse_grad = bool(use_viewdir), bool(use_vq), bool(sparse_grad)
+        self.view_reflect = bool(view_reflect) and self.use_viewdir
         self.texture = NeuralTexture(self.tex_height, self.tex_width, self.feature_dim,
                                      coarse_factor=coarse_factor, pages=self.pages)
         self.vq = VectorQuantizer(num_codes, self.feature_dim, dead_after=dead_after) if self.use_vq else None

@@ -218,24 +218,59 @@ def extra_views(mode: str, inside: np.ndarray, fringe_shell: bool, train: int, f
     return count
 
 
-def shading_normals(mesh, use_facing: bool, rounds: int, record: Decisions) -> int:
-    """Rounds of normal smoothing for the facing input (``MeshData.normal_smoothing``): ``rounds`` when the
-    mesh's normals are rough (their median turn under smoothing above ``rules.ROUGH_NORMALS_DEG``: a surface
-    fused from a NeRF's depths), else 0; without the facing input the normals are not used and nothing is
-    recorded."""
-    if not use_facing or rounds <= 0:
+def shading_normals(mesh, uses_normals: bool, rounds: int, record: Decisions,
+                    roughness: float | None = None) -> int:
+    """Rounds of normal smoothing for the shader's normal-based inputs, the facing cosine and the reflected
+    direction (``MeshData.normal_smoothing``): ``rounds`` when the mesh's normals are rough (their median turn
+    under smoothing above ``rules.ROUGH_NORMALS_DEG``: a surface fused from a NeRF's depths), else 0; without
+    such an input (``uses_normals`` False) the normals are not used and nothing is recorded. ``roughness``:
+    the turn already measured with ``rounds`` (``ShaderInputs.normal_roughness_deg``), else it is measured."""
+    if not uses_normals or rounds <= 0:
         return 0
-    rough = mesh.normal_roughness_deg(rounds)
+    rough = mesh.normal_roughness_deg(rounds) if roughness is None else roughness
     measured = {"normal_roughness_deg": rough, "rounds": rounds}
     if rough > rules.ROUGH_NORMALS_DEG:
         record.keep("smoothed shading normals", f"the surface's vertex normals turn a median {rough:.1f} degrees "
-                    f"under {rounds} rounds of smoothing (above {rules.ROUGH_NORMALS_DEG:g}): the facing input "
-                    "reads the smoothed ones", **measured)
+                    f"under {rounds} rounds of smoothing (above {rules.ROUGH_NORMALS_DEG:g}): the shader's "
+                    "normal-based inputs read the smoothed ones", **measured)
         return int(rounds)
     record.leave_out("smoothed shading normals", f"the surface's vertex normals turn a median {rough:.1f} degrees "
                      f"under smoothing (at most {rules.ROUGH_NORMALS_DEG:g}): they are kept as they are",
                      **measured)
     return 0
+
+
+def reflected_view_input(mesh, cfg: DistillConfig, use_viewdir: bool, fringe_shell: bool,
+                         record: Decisions) -> tuple[bool, float | None]:
+    """(feed the shader the view direction reflected about the shading normal, the normals' roughness in
+    degrees as ``MeshData.normal_roughness_deg`` measures it with ``texture.normal_smoothing`` rounds, None when
+    not measured). "auto" reflects on a one-layer mesh whose normals turn at most
+    ``rules.REFLECTION_MAX_ROUGHNESS_DEG`` under smoothing (a level set, not a surface fused from depths). A
+    fringe shell's colour is an average along the ray through the fringe, not a reflection off a surface: it
+    keeps the direction."""
+    mode = cfg.texture.view_input
+    if not use_viewdir or mode == "direction":
+        return False, None
+    if mode == "reflection":
+        record.keep("reflected view direction", "turned on by configuration")
+        return True, None
+    if fringe_shell:
+        record.leave_out("reflected view direction", "the mesh's fringe shell sees colours averaged along each "
+                         "ray, not reflected off a surface: the shader takes the view direction itself")
+        return False, None
+    rounds = cfg.texture.normal_smoothing or rules.ROUGHNESS_ROUNDS
+    rough = mesh.normal_roughness_deg(rounds)
+    turn = f"the surface's vertex normals turn a median {rough:.1f} degrees under {rounds} rounds of smoothing"
+    limit = rules.REFLECTION_MAX_ROUGHNESS_DEG
+    if rough > limit:
+        record.leave_out("reflected view direction", f"{turn} (above {limit:g}): reflected about them the "
+                         "direction would scatter highlights; the shader takes the view direction itself",
+                         normal_roughness_deg=rough)
+        return False, rough
+    record.keep("reflected view direction", f"{turn} (at most {limit:g}): the shader takes the view direction "
+                "reflected about them, so a highlight is one function of that direction over the whole surface",
+                normal_roughness_deg=rough)
+    return True, rough
 
 
 def view_dependence(field: Field, mesh, cfg: DistillConfig, record: Decisions,

@@ -100,7 +100,8 @@ def gl_torch_parity(model, mesh, cameras: Cameras, gl_image: np.ndarray, backgro
 
     gbuffer = rasterize(mesh, cameras[0])
     dirs = view_inputs(cameras.rays(0)[1].numpy(), gbuffer.face_id[0], gbuffer.normal[0],
-                       model.use_facing, mesh.core_faces if model.mesh_layers == 2 else None)
+                       model.use_facing, mesh.core_faces if model.mesh_layers == 2 else None,
+                       reflect=model.view_reflect)
     reference = model.render_gbuffer(gbuffer.uv[0], gbuffer.coverage[0], dirs, background)
     if skybox is not None:
         origins, world_dirs = world_cameras.rays(0)

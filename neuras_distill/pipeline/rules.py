@@ -352,6 +352,14 @@ SILHOUETTE_BLEND_MIN_PIXELS = 1.5
 #: 8.9 (shell) degrees, smoothing gave 35.04 -> 37.19 dB; the gradient ball's level set 0.4 / 1.0 degrees, where
 #: smoothing changed nothing it should and its held-out PSNR moved by the training's chaos (41.25 -> 40.61 dB).
 ROUGH_NORMALS_DEG = 4.0
+#: Rounds of smoothing :func:`choices.reflected_view_input` measures the normals' roughness with when
+#: ``texture.normal_smoothing`` is 0 (the rounds ``ROUGH_NORMALS_DEG`` was measured on).
+ROUGHNESS_ROUNDS = 20
+#: Largest median turn (degrees, under 20 rounds of smoothing) of a mesh's normals at which the shader's direction
+#: input is the view direction reflected about them (``texture.view_input`` "auto"). Measured, smoothed normals
+#: fed: the demo bunny's level set 7.6 degrees (interior at 1080p +0.7 dB), the NeuS fixture's 6.3 (interior
+#: +0.5), a surface fused from an Instant-NGP run's depths 39.6 (interior -0.2).
+REFLECTION_MAX_ROUGHNESS_DEG = 20.0
 
 
 def fringe_width_pixels(opacity: np.ndarray, lo: float = 0.05, hi: float = 0.95) -> float:

@@ -59,7 +59,8 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
     coarse = choices.coarse_level(t.coarse_factor, plan, ctx.decisions)
     model = NeuralTextureModel.for_atlas(t, height, side, pages=pages, mesh_layers=len(training.mesh.layers()),
                                          use_viewdir=inputs.use_viewdir, use_facing=inputs.use_facing,
-                                         core_viewdir=inputs.core_viewdir, coarse_factor=coarse)
+                                         core_viewdir=inputs.core_viewdir, coarse_factor=coarse,
+                                         view_reflect=inputs.reflect)
     skybox = backdrop.skybox
     key = digest("distill", ctx.keys["gbuffer"], ctx.keys["plan"], plan.steps, plan.time_budget_s,
                  settings(cfg.texture), settings(cfg.train, ("checkpoint_every_s",)), settings(cfg.skybox),

@@ -39,7 +39,8 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
     cfg, train, mesh = ctx.cfg, views.train, geometry.mesh
     ctx.clock.start("gbuffer", f"rasterizing {mesh.num_faces} faces for {len(train)} views (OpenGL)")
     origin = scene_origin(ctx.field)
-    smoothing = choices.shading_normals(mesh, inputs.use_facing, cfg.texture.normal_smoothing, ctx.decisions)
+    smoothing = choices.shading_normals(mesh, inputs.use_facing or inputs.reflect, cfg.texture.normal_smoothing,
+                                        ctx.decisions, roughness=inputs.normal_roughness_deg)
     local_mesh = MeshData((mesh.vertices.astype(np.float64) - origin).astype(np.float32), mesh.faces, mesh.uvs,
                           mesh.stats, core_faces=mesh.core_faces, normal_smoothing=smoothing)
     key = digest("gbuffer", ctx.keys["geometry"], train.to_json(), cfg.geometry.cull_back_faces,
@@ -51,7 +52,7 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
                                                                 out=folder),
                                lambda folder: load_gbuffer(folder, mmap=True),
                                lambda: rasterize_gbuffer(local_mesh, local_cameras, cull_back_faces=cull))
-    dirs = shader_view_inputs(ctx, train, gbuffer, inputs.use_facing, local_mesh.core_faces)
+    dirs = shader_view_inputs(ctx, train, gbuffer, inputs, local_mesh.core_faces)
     use_skybox, reason = choices.skyboxes(cfg.skybox.mode, gbuffer.coverage, ctx.background, ctx.decisions)
     skybox, sky_origins, sky_pixels = None, None, None
     if use_skybox:
@@ -72,14 +73,16 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
     return TrainingViews(origin, local_mesh, gbuffer, dirs), Backdrop(skybox, sky_origins, reason, clear, sky_pixels)
 
 
-def shader_view_inputs(ctx: RunContext, train, gbuffer, use_facing: bool, core_faces: int | None) -> np.ndarray:
-    """(N, H, W, C) float32 ``neural.model.view_inputs`` of every training pixel (world ray directions first),
+def shader_view_inputs(ctx: RunContext, train, gbuffer, inputs: ShaderInputs, core_faces: int | None) -> np.ndarray:
+    """(N, H, W, C) float32 ``neural.model.view_inputs`` of every training pixel (world ray directions first,
+    reflected about the shading normal where the mesh covers the pixel with ``inputs.reflect``),
     filled view by view into ``ctx.scratch_array`` (memory-mapped in the work area): like the G-buffers, never
     all in memory at once."""
     n, h, w = gbuffer.coverage.shape
-    columns = 3 + int(use_facing) + int(core_faces is not None)
+    columns = 3 + int(inputs.use_facing) + int(core_faces is not None)
     dirs = ctx.scratch_array("view_inputs", (n, h, w, columns), np.float32)
     for i in range(n):
         normal = None if gbuffer.normal is None else gbuffer.normal[i]
-        dirs[i] = view_inputs(train.rays(i)[1].numpy(), gbuffer.face_id[i], normal, use_facing, core_faces)
+        dirs[i] = view_inputs(train.rays(i)[1].numpy(), gbuffer.face_id[i], normal, inputs.use_facing, core_faces,
+                              reflect=inputs.reflect)
     return dirs

@@ -197,7 +197,9 @@ def choose_shader_inputs(ctx: RunContext, mesh, enclose: bool) -> ShaderInputs:
     use_facing = choices.facing_input(mesh, enclose, record)
     use_viewdir, spread = choices.view_dependence(ctx.field, mesh, cfg, record, fringe_shell=use_facing)
     core_viewdir = choices.core_view_dependence(ctx.field, mesh, cfg, use_viewdir, record)
-    return ShaderInputs(use_viewdir, spread, use_facing, core_viewdir)
+    reflect, roughness = choices.reflected_view_input(mesh, cfg, use_viewdir, use_facing, record)
+    return ShaderInputs(use_viewdir, spread, use_facing, core_viewdir, reflect=reflect,
+                        normal_roughness_deg=roughness)
 
 
 def fix_steps(ctx: RunContext, plan: TrainingPlan, mesh) -> TrainingPlan:
