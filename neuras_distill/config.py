@@ -196,7 +196,8 @@ class TextureConfig:
     direction")."""
     normal_smoothing: int = 20
     """Rounds of one-ring averaging of the shading normals when the shader takes the facing cosine (a mesh with a
-    fringe shell; ``MeshData.normal_smoothing``) and the normals are rough (``rules.ROUGH_NORMALS_DEG``): a
+    fringe shell) or the reflected view direction (``view_input``; ``MeshData.normal_smoothing``) and the normals
+    are rough (``rules.ROUGH_NORMALS_DEG``): a
     fringe fades with the surface's large-scale orientation, while a surface fused from a trained NeRF's depths
     is bumpy (docs/decisions.md "Smoothed shading normals"). 0: never."""
     soft_silhouettes: Mode = "auto"
