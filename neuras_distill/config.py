@@ -192,8 +192,8 @@ class TextureConfig:
     "reflection" (the view direction reflected about the shading normal, ``MeshData.vertex_normals``: a
     highlight is then one function of that direction over the whole surface instead of one per texel), or
     "auto" (the reflection on a one-layer mesh whose normals are smooth enough,
-    ``rules.REFLECTION_MAX_ROUGHNESS_DEG``; else the direction; docs/decisions.md "The reflected view
-    direction")."""
+    ``rules.REFLECTION_MAX_ROUGHNESS_DEG``; else the direction;
+    docs/decisions.md "The reflected view direction")."""
     normal_smoothing: int = 20
     """Rounds of one-ring averaging of the shading normals when the shader takes the facing cosine (a mesh with a
     fringe shell) or the reflected view direction (``view_input``; ``MeshData.normal_smoothing``) and the normals
