@@ -337,7 +337,7 @@ def bake(model, mesh: MeshData, background_color, extra_manifest: dict | None = 
         "num_codes_trained": int(model.num_codes) if model.quantizing else 0,
         "use_vq": bool(model.quantizing), "use_viewdir": bool(model.use_viewdir),
         "use_facing": bool(model.use_facing),
-        "view_input": "reflection" if getattr(model, "view_reflect", False) else "direction",
+        "view_input": "reflection" if model.view_reflect else "direction",
         "mlp_hidden": int(model.hidden), "mlp_layers": int(model.num_layers),
         "shell_mlp_hidden": int(model.shaders[-1].hidden) if model.mesh_layers == 2 else None,
         "shaders": int(model.mesh_layers),

@@ -204,7 +204,7 @@ def generate_fragment_shader(model, codes_per_row: int = 1) -> str:
     c4 = (dim + 3) // 4
     use_dir = any(bool(s.use_viewdir) for s in model.shaders)
     use_facing = bool(model.use_facing)
-    use_reflect = use_dir and bool(getattr(model, "view_reflect", False))
+    use_reflect = bool(model.view_reflect)     # only ever set with a direction input
     layers = model.shader.weights()      # the core's (a shell's shader may be wider: ``shell_hidden``)
 
     out: list[str] = [

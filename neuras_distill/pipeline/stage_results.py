@@ -210,8 +210,9 @@ class ShaderInputs:
 class TrainingViews:
     """The training views as the distillation sees them: ``origin`` ((3,) float64 world position everything
     below is relative to), ``mesh`` (the unwrapped mesh relative to it, float32), ``gbuffer`` (per view
-    (N, H, W, ...) uv, face_id, coverage, depth, normal) and ``dirs`` ((N, H, W, 3 or 4) view inputs:
-    world ray directions, plus the facing cosine when the shader takes it)."""
+    (N, H, W, ...) uv, face_id, coverage, depth, normal) and ``dirs`` ((N, H, W, 3 or more) view inputs:
+    world ray directions, reflected about the shading normal on covered pixels with ``ShaderInputs.reflect``,
+    plus the facing cosine and the mesh layer when the shader takes them)."""
 
     origin: np.ndarray
     mesh: MeshData
