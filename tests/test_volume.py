@@ -10,8 +10,9 @@ import pytest
 import torch
 
 from neuras_distill.render.cameras import Cameras, look_at
-from neuras_distill.render.compositing import (alpha_from_density, alpha_from_sdf, transmittance_from_alpha,
-                                               transmittance_from_density, weights_from_density)
+from neuras_distill.render.compositing import (alpha_from_density, alpha_from_sdf, sdf_weight_centre,
+                                               transmittance_from_alpha, transmittance_from_density,
+                                               weights_from_density)
 from neuras_distill.render.occupancy import OccupancyGrid
 from neuras_distill.render.rays import ray_aabb
 from neuras_distill.render.volume import VolumeRenderer
@@ -92,6 +93,62 @@ def test_alpha_from_sdf_gradients_finite_and_signs():
     out = r.render_rays(torch.tensor([[0.0, 0.0, -2.0]]), torch.tensor([[0.0, 0.0, 1.0]]))
     assert out["opacity"].item() == pytest.approx(1.0, abs=1e-3)
     assert out["depth"].item() == pytest.approx(1.5, abs=r.step)
+
+
+def _exact_weight_centre(s, f_prev, f_next):
+    """The mean position (fraction of the interval) of -d/dt sigmoid(s f(t)) with f linear from f_prev to
+    f_next, by 50-digit quadrature."""
+    mpmath.mp.dps = 50
+    f = lambda u: mpmath.mpf(f_prev) + (mpmath.mpf(f_next) - mpmath.mpf(f_prev)) * u  # noqa: E731
+    pdf = lambda u: mpmath.exp(-abs(s * f(u))) / (1 + mpmath.exp(-abs(s * f(u)))) ** 2  # noqa: E731  (logistic)
+    return float(mpmath.quad(lambda u: u * pdf(u), [0, 1]) / mpmath.quad(pdf, [0, 1]))
+
+
+@pytest.mark.parametrize("s", [64.0, 1e3, 1e4])
+def test_sdf_weight_centre_is_where_the_interval_holds_its_opacity(s):
+    """Colour is sampled where an interval's opacity lies: at the mean of its weight within the interval."""
+    cases = [(0.001, -0.005), (0.004, -0.002), (0.02, 0.014), (-0.01, -0.02), (0.003, -0.003), (0.04, 0.03)]
+    fp = torch.tensor([c[0] for c in cases])
+    fn = torch.tensor([c[1] for c in cases])
+    got = sdf_weight_centre(fp, fn, s)
+    for i in range(len(cases)):
+        exact = _exact_weight_centre(s, float(fp[i]), float(fn[i]))
+        assert got[i].item() == pytest.approx(exact, abs=1e-4), (s, cases[i])
+    # a surface crossed at a sixth of a sharp interval has its colour near there, not at the midpoint
+    assert sdf_weight_centre(torch.tensor([0.001]), torch.tensor([-0.005]), 1e4).item() == pytest.approx(1 / 6,
+                                                                                                          abs=0.02)
+    # no opacity to place (rising, flat, NaN, or so far outside that its mass is below float64): the midpoint
+    rest = sdf_weight_centre(torch.tensor([-0.01, 0.2, float("nan"), 5.0]), torch.tensor([0.01, 0.2, 0.0, 4.9]), 1e3)
+    assert rest.tolist() == [0.5, 0.5, 0.5, 0.5]
+
+
+class _LayeredPlane:
+    """An SDF plane z = 0.0137 (normal +z) whose colour changes with depth: red above z = 0.0137 - 0.004,
+    blue below; a march that samples colour away from the surface sees blue."""
+
+    kind = "sdf"
+    inv_s = 1e4
+    aabb = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+    def geometry(self, x):
+        return 0.0137 - x[:, 2]
+
+    def radiance(self, x, d):
+        red = (x[:, 2] < 0.0137 + 0.004).float()[:, None]
+        return red * torch.tensor([1.0, 0.0, 0.0]) + (1 - red) * torch.tensor([0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("steps", [16, 24, 37])
+def test_sdf_colour_is_taken_where_a_coarse_march_crosses_the_surface(steps):
+    """At any step count the rays' colour is the surface's (red), wherever the crossing falls in its interval:
+    the interval midpoint could lie up to half a step (here up to 0.11) beyond the thin red skin."""
+    rays = torch.linspace(-0.3, 0.3, 41)
+    o = torch.stack([rays, torch.zeros_like(rays), torch.full_like(rays, -0.9)], dim=-1)
+    d = torch.nn.functional.normalize(torch.stack([0.1 * rays, torch.zeros_like(rays), torch.ones_like(rays)], -1),
+                                      dim=-1)
+    out = VolumeRenderer(_LayeredPlane(), steps, occupancy=None).render_rays(o, d)
+    assert out["opacity"].min().item() > 0.999
+    assert out["rgb"][:, 0].min().item() > 0.95 and out["rgb"][:, 2].max().item() < 0.05
 
 
 # ---------------------------------------------------------------------------------------------- A6

@@ -68,6 +68,40 @@ def alpha_from_sdf(sdf_prev: torch.Tensor, sdf_next: torch.Tensor, inv_s) -> tor
     return torch.where(ok, alpha, 0.0)
 
 
+def sdf_weight_centre(sdf_prev: torch.Tensor, sdf_next: torch.Tensor, inv_s) -> torch.Tensor:
+    """(..., S) where inside each interval its opacity lies: the mean position of the NeuS weight within the
+    interval whose endpoint SDFs are ``sdf_prev``, ``sdf_next``, as a fraction in [0, 1] of its length (0 the
+    start), the SDF taken as linear along it.
+
+    Within the interval the transmittance falls as ``sigmoid(s f(t)) / sigmoid(s f_prev)``, so the weight is the
+    logistic density of ``x = s f`` truncated to [a, b] = [s f_next, s f_prev]; its mean is
+    ``(g(b) - g(a)) / (sigmoid(b) - sigmoid(a))`` with ``g(x) = x sigmoid(x) - softplus(x)``, and the fraction
+    is ``(b - mean) / (b - a)``. A surface crossed inside a long interval has its colour there, not at the
+    interval's midpoint: sampling the midpoint draws the step pattern into colour that varies across the
+    surface (the demo's speckles at 256 steps: 33 dB against the converged march inside a 256² crop).
+    0.5 (the midpoint) where the interval holds no opacity to place (the SDF rising or flat along it, a NaN/Inf
+    end, or a mass below float64's range); computed in float64, returned float32."""
+    s = torch.as_tensor(inv_s, dtype=torch.float64)
+    b, a = s * sdf_prev.double(), s * sdf_next.double()
+    ok = torch.isfinite(a) & torch.isfinite(b) & (b - a > 1e-6)
+    a, b = torch.where(ok, a, 0.0), torch.where(ok, b, 1.0)
+    # the density is even: mirror an interval lying mostly below 0 onto [-b, -a] and work in the upper tail,
+    # where sigmoid(-x) and softplus(-x) keep their relative precision (deep inside or far outside the surface
+    # the mass is e^-100 or less, and the mean is still a plain number)
+    flip = a + b < 0
+    lo, hi = torch.where(flip, -b, a), torch.where(flip, -a, b)
+
+    def g(x: torch.Tensor) -> torch.Tensor:          # x sigmoid(x) - softplus(x), in its upper-tail form
+        return -x * torch.sigmoid(-x) - torch.nn.functional.softplus(-x)
+
+    mass = torch.sigmoid(-lo) - torch.sigmoid(-hi)
+    ok = ok & (mass > 0)
+    mean = (g(hi) - g(lo)) / torch.where(ok, mass, 1.0)
+    mean = torch.where(flip, -mean, mean)
+    centre = ((b - mean) / (b - a)).clamp(0.0, 1.0)
+    return torch.where(ok, centre, 0.5).float()
+
+
 def transmittance_from_alpha(alpha: torch.Tensor) -> torch.Tensor:
     """(..., S) exclusive transmittance ``prod_{j<i} (1 - alpha_j)`` via torch.cumprod (T_0 = 1), float32.
     The factors and the product are float64: 1 - α rounded to float32 at each sample (1 - 1e-7 becomes

@@ -24,11 +24,14 @@ near plane and the box (in front) and between the box and its far plane (behind)
 spaced as :mod:`~neuras_distill.render.far_region` says; the outputs' ``opacity`` and depths stay the
 foreground box's (as seen through what lies in front of it), ``rgb`` is the whole picture.
 
-Opacity models: density fields use σ at the interval midpoints with α = 1 − exp(−σδ) (stable forms in
-:mod:`~neuras_distill.render.compositing`); SDF fields use the NeuS discrete opacity from the SDF at the
-interval endpoints (``field.inv_s``, or 1000 / (aabb diagonal / √3) if absent) and the colour at the
-midpoint. The background (``field.background(d)``, else ``field.background_color``, else black) is
-composited behind: ``rgb = Σ w c + (1 − Σ w) · bg``.
+Opacity models: density fields use σ at the interval midpoints with α = 1 − exp(−σδ) and the colour at the
+midpoint, as their trainers sample them (stable forms in :mod:`~neuras_distill.render.compositing`); SDF
+fields use the NeuS discrete opacity from the SDF at the interval endpoints (``field.inv_s``, or
+1000 / (aabb diagonal / √3) if absent) and the colour where the interval's opacity lies, at the mean of its
+weight with the SDF linear along it (:func:`~neuras_distill.render.compositing.sdf_weight_centre`): a
+surface sharper than the step is crossed anywhere in its interval, and colour sampled at the midpoint drew
+the step pattern into every colour that varies across the surface. The background (``field.background(d)``,
+else ``field.background_color``, else black) is composited behind: ``rgb = Σ w c + (1 − Σ w) · bg``.
 
 Outputs per pixel: ``rgb`` in [0, 1]; ``opacity`` = Σ w; ``depth`` = Σ w t / Σ w, the expected distance
 along the (unit) ray from the camera centre, not the camera-space z (0 where opacity is 0);
@@ -48,7 +51,7 @@ import torch
 from ..config import TeacherConfig
 from ..device import chunk_for_memory, field_device, synchronize
 from ..errors import require
-from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth
+from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth, sdf_weight_centre
 from .far_region import FarRegion, march_interval
 from .occupancy import OccupancyGrid, default_inv_s
 from .rays import ray_aabb
@@ -258,6 +261,7 @@ class VolumeRenderer:
             tau = optical_depth(sigma.reshape(n_live, n_k), dt[:, None])
             alpha = -torch.expm1(-tau)
             tau = tau.double()
+            f = None
         else:
             ends = torch.zeros(n_live, n_k + 1, dtype=torch.bool, device=o.device)
             ends[:, :-1] |= occ
@@ -301,11 +305,24 @@ class VolumeRenderer:
             rows = sflat // n_k
             self.stats["radiance_points"] += rows.numel()
             dirs = d[rows]
-            x = torch.addcmul(o[rows], t_mid.reshape(-1)[sflat][:, None], dirs)
+            x = torch.addcmul(o[rows], self._colour_distance(sflat, t_mid, f, dt)[:, None], dirs)
             c = torch.nan_to_num(self.field.radiance(x, dirs).float().reshape(-1, 3), nan=0.0, posinf=1.0,
                                  neginf=0.0)                          # a NaN colour sample counts as black
             acc_rgb.index_add_(0, rows, w.reshape(-1)[sflat][:, None] * c)
         return tau_in
+
+    def _colour_distance(self, flat: torch.Tensor, t_mid: torch.Tensor, f: torch.Tensor | None,
+                         dt: torch.Tensor) -> torch.Tensor:
+        """(M,) distance along the ray at which the samples ``flat`` (indices into the round's (A, K) grid) take
+        their colour: a density field's interval midpoint (as its trainer samples it), an SDF interval's weight
+        centre (:func:`~.compositing.sdf_weight_centre`; ``f`` (A, K + 1) the endpoint SDFs)."""
+        t = t_mid.reshape(-1)[flat]
+        if f is None:
+            return t
+        n_k = t_mid.shape[1]
+        rows, cols = flat // n_k, flat % n_k
+        centre = sdf_weight_centre(f[rows, cols], f[rows, cols + 1], self.inv_s)
+        return t + (centre - 0.5) * dt[rows]
 
     # ------------------------------------------------------------------ cameras
     @torch.no_grad()
