@@ -240,3 +240,34 @@ def test_scores_split_inside_and_outside_the_foreground_box():
     assert entry["flip_inside_box"] == pytest.approx(float(flip_map[opacity >= 0.5].mean()))
     summary, _ = evaluate.fidelity([bundle], [field], [opacity], [opacity > 0.5])
     assert summary["psnr_outside_box"] == entry["psnr_outside_box"] and summary["psnr_inside_box_per_view"]
+
+
+def test_error_vs_runtime_reuses_the_held_out_render_at_the_teacher_steps():
+    """The curve's point at the teacher's step count is the held-out render already made (its image and time);
+    the other step counts and the reference are rendered, each once."""
+    rendered = []
+
+    class Field:
+        def __init__(self, steps):
+            self.steps = steps
+
+        def render(self, cam, index):
+            rendered.append(self.steps)
+            return {"rgb": np.full((4, 6, 3), 0.5 + 0.5 / self.steps, np.float32)}
+
+    class Bundle:
+        def time_frames(self, cam, warmup, frames):
+            return {"median_ms": 2.0}
+
+        def render(self, cam, index):
+            return np.full((4, 6, 3), 0.5, np.float32)
+
+    held_out = np.full((4, 6, 3), 0.25, np.float32)
+    points = evaluate.error_vs_runtime(Field, [object()], 512, [32, 64], 256, Bundle(), main_render=(held_out, 7.5))
+    assert sorted(rendered) == [32, 64, 512]
+    main = next(p for p in points if p.get("steps") == 256)
+    assert main["seconds_per_frame"] == 7.5
+    assert main["psnr"] == pytest.approx(metrics.psnr(held_out, np.full((4, 6, 3), 0.5 + 0.5 / 512, np.float32)))
+    assert points[-1]["kind"] == "bundle" and points[-1]["seconds_per_frame"] == pytest.approx(0.002)
+    evaluate.error_vs_runtime(Field, [object()], 512, [32], 256, Bundle())
+    assert sorted(rendered[3:]) == [32, 256, 512]       # without it the teacher's step count is rendered

@@ -65,18 +65,24 @@ def compare(bundle_images: list[np.ndarray], field_images: list[np.ndarray]) -> 
 
 
 def error_vs_runtime(make_renderer, cameras: Cameras, reference_steps: int, step_counts: list[int],
-                     main_steps: int, bundle_renderer, main_seconds: float | None = None) -> list[dict]:
+                     main_steps: int, bundle_renderer,
+                     main_render: tuple[np.ndarray, float] | None = None) -> list[dict]:
     """Points {label, seconds_per_frame, psnr} on camera 0 of ``cameras``: the field at each step count in
     ``step_counts`` and at ``main_steps``, and the bundle; all measured against the field at
-    ``reference_steps`` (a denser march than any point)."""
+    ``reference_steps`` (a denser march than any point). ``main_render``: the (H, W, 3) image of camera 0 at
+    ``main_steps`` and its seconds, when the caller already rendered it that way (the held-out views: the same
+    renderer, camera and resolution), used instead of rendering it again."""
     cam = cameras[0]
     reference = make_renderer(reference_steps).render(cam, 0)["rgb"]
     points = []
     for steps in sorted(set(step_counts) | {main_steps}):
-        renderer = make_renderer(steps)
-        t0 = time.perf_counter()
-        image = renderer.render(cam, 0)["rgb"]
-        seconds = time.perf_counter() - t0
+        if steps == main_steps and main_render is not None:
+            image, seconds = main_render
+        else:
+            renderer = make_renderer(steps)
+            t0 = time.perf_counter()
+            image = renderer.render(cam, 0)["rgb"]
+            seconds = time.perf_counter() - t0
         points.append({"label": f"field, {steps} steps/ray", "kind": "field", "steps": steps,
                        "seconds_per_frame": seconds, "psnr": metrics.psnr(image, reference)})
     timing = bundle_renderer.time_frames(cam, warmup=3, frames=10)

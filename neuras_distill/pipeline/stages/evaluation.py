@@ -80,7 +80,8 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
     points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(ctx.field, num_steps=s, occupancy=grid,
                                                                 far_steps=max(1, round(far * s)) if far else 0), test,
                                        2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
-                                       cfg.teacher.num_steps, player)
+                                       cfg.teacher.num_steps, player,
+                                       main_render=(field_images[0], field_views.seconds[0]))
     lap("error_vs_runtime")
     extrapolation, extra_views = lane_shift_views(ctx.field, teacher, player, test)
     lap("lane_shifts")
