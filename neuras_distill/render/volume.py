@@ -30,10 +30,8 @@ fields use the NeuS discrete opacity from the SDF at the interval endpoints (``f
 1000 / (aabb diagonal / √3) if absent) and the colour where the interval's opacity lies, at the mean of its
 weight with the SDF linear along it (:func:`~neuras_distill.render.compositing.sdf_weight_centre`): a
 surface sharper than the step is crossed anywhere in its interval, and colour sampled at the midpoint drew
-the step pattern into every colour that varies across the surface. An SDF interval that may hide a part
-thinner than the step between its endpoints is split into pieces
-(:mod:`~neuras_distill.render.thin_intervals`). The background (``field.background(d)``, else
-``field.background_color``, else black) is composited behind: ``rgb = Σ w c + (1 − Σ w) · bg``.
+the step pattern into every colour that varies across the surface. The background (``field.background(d)``,
+else ``field.background_color``, else black) is composited behind: ``rgb = Σ w c + (1 − Σ w) · bg``.
 
 Outputs per pixel: ``rgb`` in [0, 1]; ``opacity`` = Σ w; ``depth`` = Σ w t / Σ w, the expected distance
 along the (unit) ray from the camera centre, not the camera-space z (0 where opacity is 0);
@@ -57,7 +55,6 @@ from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth, sdf_we
 from .far_region import FarRegion, march_interval
 from .occupancy import OccupancyGrid, default_inv_s
 from .rays import ray_aabb
-from .thin_intervals import refine_thin_intervals, substeps, thin_intervals
 
 #: Opacity at which a soft fringe starts (``fringe_depth``; the silhouette band of the metrics starts at 0.02,
 #: the fringe width and the shell's coverage check at 0.05).
@@ -109,7 +106,6 @@ class VolumeRenderer:
         self._stop_tau = -math.log(self.early_stop) if self.early_stop > 0 else math.inf
         self.min_weight = float(min_weight)
         self.inv_s = default_inv_s(field) if self.kind == "sdf" else None
-        self.thin_substeps = substeps(self.step, self.inv_s) if self.kind == "sdf" else 0
         if isinstance(occupancy, str):
             require(occupancy == "auto", f"occupancy must be None, an OccupancyGrid or 'auto', got {occupancy!r}")
             provided = getattr(field, "occupancy_grid", None)  # a field's own grid (e.g. instant-ngp's)
@@ -265,7 +261,7 @@ class VolumeRenderer:
             tau = optical_depth(sigma.reshape(n_live, n_k), dt[:, None])
             alpha = -torch.expm1(-tau)
             tau = tau.double()
-            f = colour_at = None
+            f = None
         else:
             ends = torch.zeros(n_live, n_k + 1, dtype=torch.bool, device=o.device)
             ends[:, :-1] |= occ
@@ -280,7 +276,6 @@ class VolumeRenderer:
             f[eflat] = self.field.geometry(pts).reshape(-1).float()
             f = f.reshape(n_live, n_k + 1)
             alpha = alpha_from_sdf(f[:, :-1], f[:, 1:], self.inv_s) * occ
-            alpha, colour_at = self._refine_thin(o, d, t0, k, dt, f, occ, alpha)
             tau = -torch.log1p(-alpha.double())                       # inf where α = 1
         blocks = (n_live, n_k // self.segment, self.segment)
         tau, alpha = tau.reshape(blocks), alpha.reshape(blocks)
@@ -310,46 +305,23 @@ class VolumeRenderer:
             rows = sflat // n_k
             self.stats["radiance_points"] += rows.numel()
             dirs = d[rows]
-            x = torch.addcmul(o[rows], self._colour_distance(sflat, t_mid, f, colour_at, dt)[:, None], dirs)
+            x = torch.addcmul(o[rows], self._colour_distance(sflat, t_mid, f, dt)[:, None], dirs)
             c = torch.nan_to_num(self.field.radiance(x, dirs).float().reshape(-1, 3), nan=0.0, posinf=1.0,
                                  neginf=0.0)                          # a NaN colour sample counts as black
             acc_rgb.index_add_(0, rows, w.reshape(-1)[sflat][:, None] * c)
         return tau_in
 
-    def _refine_thin(self, o, d, t0, k, dt, f, occ, alpha) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """The round's (A, K) SDF opacities with the intervals that may hide a thin part refined
-        (:mod:`~.thin_intervals`), and (A, K) where those take their colour (a fraction of the interval; NaN for
-        the others), or None when no interval needed it."""
-        thin = thin_intervals(f, dt, self.inv_s, occ)
-        rows, cols = torch.nonzero(thin, as_tuple=True)
-        if rows.numel() == 0:
-            return alpha, None
-        t_start = torch.addcmul(t0[rows], k[cols], dt[rows])
-        refined, position, evaluations = refine_thin_intervals(self.field.geometry, o[rows], d[rows], t_start,
-                                                               dt[rows], f[rows, cols], f[rows, cols + 1],
-                                                               self.inv_s, self.thin_substeps)
-        self.stats["geometry_points"] += evaluations
-        alpha = alpha.clone()
-        alpha[rows, cols] = refined
-        colour_at = torch.full_like(alpha, float("nan"))
-        colour_at[rows, cols] = position
-        return alpha, colour_at
-
     def _colour_distance(self, flat: torch.Tensor, t_mid: torch.Tensor, f: torch.Tensor | None,
-                         colour_at: torch.Tensor | None, dt: torch.Tensor) -> torch.Tensor:
+                         dt: torch.Tensor) -> torch.Tensor:
         """(M,) distance along the ray at which the samples ``flat`` (indices into the round's (A, K) grid) take
         their colour: a density field's interval midpoint (as its trainer samples it), an SDF interval's weight
-        centre (:func:`~.compositing.sdf_weight_centre`; ``f`` (A, K + 1) the endpoint SDFs), or for a refined
-        interval the fraction ``colour_at`` (A, K) gives."""
+        centre (:func:`~.compositing.sdf_weight_centre`; ``f`` (A, K + 1) the endpoint SDFs)."""
         t = t_mid.reshape(-1)[flat]
         if f is None:
             return t
         n_k = t_mid.shape[1]
         rows, cols = flat // n_k, flat % n_k
         centre = sdf_weight_centre(f[rows, cols], f[rows, cols + 1], self.inv_s)
-        if colour_at is not None:
-            fixed = colour_at[rows, cols]
-            centre = torch.where(torch.isfinite(fixed), fixed, centre)
         return t + (centre - 0.5) * dt[rows]
 
     # ------------------------------------------------------------------ cameras
