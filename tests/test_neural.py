@@ -267,6 +267,23 @@ def test_coarse_level_gets_the_gradient_of_its_touched_texels_only():
     assert tex.coarse.grad.sum().item() == pytest.approx(4 * 2)  # each texel's coarse weights sum to 1, 2 channels
 
 
+def test_atlas_gradient_holds_each_texel_once_and_sums_its_lookups():
+    """Lookups that share texels (neighbouring pixels' bilinear corners) give one gradient row per texel, in
+    order, the sum of its lookups' gradients, as a dense lookup would."""
+    torch.manual_seed(0)
+    tex = NeuralTexture(8, 8, 3)
+    idx = torch.tensor([[9, 10, 17, 18], [10, 11, 18, 19], [63, 9, 9, 0]])
+    weights = torch.randn(3, 4, 3)
+    (tex.gather(idx) * weights).sum().backward()
+    grad = tex.data.grad
+    assert grad.is_sparse
+    flat = grad._indices()[0] * 8 + grad._indices()[1]
+    assert flat.tolist() == sorted(set(idx.flatten().tolist()))
+    dense = tex.data.detach().clone().requires_grad_(True)
+    (dense.view(-1, 3)[idx] * weights).sum().backward()
+    torch.testing.assert_close(grad.to_dense(), dense.grad)
+
+
 def test_a_model_with_a_coarse_level_bakes_what_it_plays():
     torch.manual_seed(0)
     m = NeuralTextureModel(16, 16, feature_dim=4, num_codes=32, coarse_factor=4)
