@@ -2,7 +2,8 @@
 
 Two objects (a red sphere and a blue box) on a checkered ground plane that reaches a distant backdrop (a
 cylinder of radius :data:`BACKDROP_RADIUS` with a skyline of buildings, striped by floor), and a sky gradient
-above it. World frame: z up, metres. Cameras: a full orbit at radius 3, 1.2 m up, looking at the objects;
+above it. Two grounds (``ground=``): "soft", a low-contrast checker fading out within a few metres, and
+"checker", a high-contrast one (near-black and near-white squares) that keeps its contrast to the horizon. World frame: z up, metres. Cameras: a full orbit at radius 3, 1.2 m up, looking at the objects;
 OpenGL convention (x right, y up, looking down -z), as nerfstudio's ``transforms.json`` stores them.
 
 :func:`render_view` returns an (H, W, 3) float image in [0, 1] (2x2 supersampled); :func:`orbit_c2w` the poses.
@@ -44,13 +45,27 @@ def _skyline(theta: np.ndarray) -> np.ndarray:
     return 4.0 + 10.0 * ((block * 7919 % 97) / 96.0)
 
 
-def _shade(o: np.ndarray, d: np.ndarray) -> np.ndarray:
+GROUNDS = ("soft", "checker")
+
+
+def _ground_colour(p: np.ndarray, r: np.ndarray, ground: str) -> np.ndarray:
+    """(N, 3) colour of the ground at points ``p`` (N, 3), ``r`` (N,) their distance from the z axis."""
+    square = (np.floor(p[:, 0]) + np.floor(p[:, 1])) % 2
+    if ground == "checker":     # 0.06 against 0.9, fading slowly to mid-grey far away (no aliasing at the horizon)
+        fade = np.exp(-r / 40.0)
+        check = 0.48 + (square - 0.5) * 0.84 * fade
+        return np.stack([check, check * 0.97, check * 0.92], axis=1)
+    check = square * np.exp(-r / 6.0)   # fades out: no far aliasing
+    return np.stack([0.40 + 0.25 * check, 0.55 + 0.15 * check, 0.32 + 0.10 * check], axis=1)
+
+
+def _shade(o: np.ndarray, d: np.ndarray, ground: str = "soft") -> np.ndarray:
     """Colour (N, 3) of rays o, d (N, 3), d unit."""
     with np.errstate(invalid="ignore", over="ignore"):
-        return _shade_rays(o, d)
+        return _shade_rays(o, d, ground)
 
 
-def _shade_rays(o: np.ndarray, d: np.ndarray) -> np.ndarray:
+def _shade_rays(o: np.ndarray, d: np.ndarray, ground_kind: str) -> np.ndarray:
     n = o.shape[0]
     t_best = np.full(n, np.inf)
     colour = np.zeros((n, 3))
@@ -78,13 +93,12 @@ def _shade_rays(o: np.ndarray, d: np.ndarray) -> np.ndarray:
     upd = hit & (t < t_best)
     colour[upd], t_best[upd] = wall[upd], t[upd]
 
-    # ground plane z = 0, a checker of 1 m squares fading out with the distance
+    # ground plane z = 0, a checker of 1 m squares
     t = np.where(d[:, 2] < -1e-9, -o[:, 2] / np.where(d[:, 2] < -1e-9, d[:, 2], -1.0), np.inf)
     p = o + np.where(np.isfinite(t), t, 0.0)[:, None] * d
     r = np.hypot(p[:, 0], p[:, 1])
     hit = np.isfinite(t) & (t > 0) & (r < GROUND_EXTENT)
-    check = ((np.floor(p[:, 0]) + np.floor(p[:, 1])) % 2) * np.exp(-r / 6.0)   # fades out: no far aliasing
-    ground = np.stack([0.40 + 0.25 * check, 0.55 + 0.15 * check, 0.32 + 0.10 * check], axis=1)
+    ground = _ground_colour(p, r, ground_kind)
     upd = hit & (t < t_best)
     colour[upd], t_best[upd] = ground[upd], t[upd]
 
@@ -113,8 +127,10 @@ def _shade_rays(o: np.ndarray, d: np.ndarray) -> np.ndarray:
     return np.clip(colour, 0, 1)
 
 
-def render_view(c2w: np.ndarray, width: int, height: int, focal: float, supersample: int = 2) -> np.ndarray:
-    """(H, W, 3) float64 image of camera ``c2w`` (4, 4), focal length in pixels, pixel centres at +0.5."""
+def render_view(c2w: np.ndarray, width: int, height: int, focal: float, supersample: int = 2,
+                ground: str = "soft") -> np.ndarray:
+    """(H, W, 3) float64 image of camera ``c2w`` (4, 4), focal length in pixels, pixel centres at +0.5, with the
+    ground ``ground`` (one of :data:`GROUNDS`)."""
     s = supersample
     offs = (np.arange(s) + 0.5) / s
     acc = np.zeros((height, width, 3))
@@ -125,5 +141,5 @@ def render_view(c2w: np.ndarray, width: int, height: int, focal: float, supersam
             d = d_cam.reshape(-1, 3) @ c2w[:3, :3].T
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             o = np.broadcast_to(c2w[:3, 3], d.shape)
-            acc += _shade(o, d).reshape(height, width, 3)
+            acc += _shade(o, d, ground).reshape(height, width, 3)
     return acc / (s * s)
