@@ -119,8 +119,13 @@ def test_stiff_field_raises_the_teacher_steps_before_rendering():
     cfg.teacher.num_steps = nd.DistillConfig().teacher.num_steps      # at its default: the check may raise it
     cfg.geometry.grid_resolution = 48                                   # chosen: kept, recommendation reported
     before = cfg.teacher.num_steps
-    stab = _check_stability(field, field.default_cameras(4, 32, 32) if hasattr(field, "default_cameras") else
-                            nd.Cameras.orbit([0, 0, 0], 3.0, 4, width=32, height=32), cfg, lambda m: None)
+    caller = cfg
+    stab, cfg = _check_stability(field, field.default_cameras(4, 32, 32) if hasattr(field, "default_cameras") else
+                                 nd.Cameras.orbit([0, 0, 0], 3.0, 4, width=32, height=32), caller, lambda m: None)
+    # the caller's configuration is not changed: a second run with it starts from the same settings
+    assert caller.teacher.num_steps == before and caller.geometry.surface == "auto" and cfg is not caller
+    again, cfg_again = _check_stability(field, field.default_cameras(4, 32, 32), caller, lambda m: None)
+    assert again["applied"] == stab["applied"] and cfg_again == cfg
     assert stab["verdict"] == "adapted"
     assert stab["applied"]["teacher.num_steps"] == [before, cfg.teacher.num_steps]
     assert cfg.teacher.num_steps >= 1024 > before

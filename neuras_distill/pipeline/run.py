@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -80,7 +80,7 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
             (the first GPU when torch sees one, else the CPU), ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or a
             :class:`torch.device`. A field's tensors are moved there in place. The bundle is played by OpenGL.
         nproc: processes that share the teacher's volume rendering (this one and ``nproc - 1`` spawned
-            workers, ``neuras_distill.parallel``; CPU only); 1: none are spawned.
+            workers, ``neuras_distill.pipeline.parallel``; CPU only); 1: none are spawned.
     Returns:
         DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``.
     Raises:
@@ -88,7 +88,7 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
     """
     from ..device import resolve_device
     from ..fields.base import check_field
-    from ..parallel import check_nproc
+    from .parallel import check_nproc
 
     device = resolve_device(device)
     nproc = check_nproc(nproc)
@@ -106,7 +106,7 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
     cameras, camera_origin = _pick_cameras(field, cameras, cfg)
     if camera_origin.startswith("generated"):
         log(f"cameras: {camera_origin}")
-    stability = _check_stability(field, cameras, cfg, log)
+    stability, cfg = _check_stability(field, cameras, cfg, log)
     torch.manual_seed(cfg.train.seed)
     np.random.seed(cfg.train.seed)
 
@@ -116,12 +116,12 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
 
 
 def _render_pool(field, nproc: int):
-    """A :class:`~neuras_distill.parallel.RenderPool` for ``nproc`` > 1, else a context holding None."""
+    """A :class:`~neuras_distill.pipeline.parallel.RenderPool` for ``nproc`` > 1, else a context holding None."""
     import contextlib
 
     if nproc == 1:
         return contextlib.nullcontext(None)
-    from ..parallel import RenderPool
+    from .parallel import RenderPool
 
     return RenderPool(field, nproc)
 
@@ -151,11 +151,13 @@ def _run_into(out, field, cameras, cfg, log, progress, stability, source, device
     return result
 
 
-def _check_stability(field: Field, cameras: Cameras, cfg: DistillConfig, log) -> dict:
+def _check_stability(field: Field, cameras: Cameras, cfg: DistillConfig, log) -> tuple[dict, DistillConfig]:
     """``neuras-distill check`` on the field before anything is rendered (``stability/probe.py``): a refused
     probe stops the run with its reason; adaptations raise the configuration's settings (never lower them)
     where they are at their defaults; a setting the user (or a preset) chose is kept and the recommendation
-    reported. Returns the report's JSON with ``applied`` and ``not_applied`` ({key: [current, recommended]})."""
+    reported. Returns (the report's JSON with ``applied`` and ``not_applied`` ({key: [current, recommended]}),
+    the configuration the run uses: a validated copy with the raised settings; ``cfg`` itself is not changed,
+    so a second run with the same object starts from the same settings)."""
     from ..stability.probe import probe_field
 
     report = probe_field(field, cameras, num_steps=cfg.teacher.num_steps,
@@ -172,15 +174,16 @@ def _check_stability(field: Field, cameras: Cameras, cfg: DistillConfig, log) ->
         if old != getattr(getattr(defaults, section), name):
             kept[key] = [old, type(old)(value)]
             continue
-        setattr(part, name, type(old)(value))
+        cfg = replace(cfg, **{section: replace(part, **{name: type(old)(value)})})
         applied[key] = [old, type(old)(value)]
+    cfg = cfg.validate()
     result = report.to_json()
     result.update(applied=applied, not_applied=kept)
     log(f"stability check: {report.verdict}"
         + (f"; raised {', '.join(f'{k} {a} -> {b}' for k, (a, b) in applied.items())}" if applied else "")
         + (f"; kept as configured {', '.join(f'{k} {a} (recommended {b})' for k, (a, b) in kept.items())}"
            if kept else "") + f" ({report.seconds:.1f} s)")
-    return result
+    return result, cfg
 
 
 def _pick_cameras(field: Field, cameras, cfg: DistillConfig) -> tuple[Cameras, str]:
