@@ -20,7 +20,7 @@ import torch
 from neuras_distill.config import TrainConfig
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.train import fit
-from neuras_distill.parallel import RenderPool
+from neuras_distill.pipeline.parallel import RenderPool
 from neuras_distill.scenes.analytic import SphereSDF
 
 

@@ -30,7 +30,7 @@ def _distill_command(args) -> int:
     from pathlib import Path
 
     from .device import resolve_device
-    from .parallel import check_nproc
+    from .pipeline.parallel import check_nproc
     from .pipeline.run import distill
     from .pipeline.rundir import check_output_folder
 

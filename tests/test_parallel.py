@@ -1,4 +1,4 @@
-"""--nproc: worker processes share the teacher's volume rendering (neuras_distill.parallel, torch.distributed gloo)."""
+"""--nproc: worker processes share the teacher's volume rendering (neuras_distill.pipeline.parallel, torch.distributed gloo)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from neuras_distill.errors import BadInputError
-from neuras_distill.parallel import RenderPool, check_nproc, max_processes
+from neuras_distill.pipeline.parallel import RenderPool, check_nproc, max_processes
 from neuras_distill.pipeline.evaluate import render_field_views
 from neuras_distill.render.volume import VolumeRenderer
 from neuras_distill.scenes.analytic import SphereSDF

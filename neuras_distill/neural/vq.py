@@ -1,6 +1,6 @@
 """Vector quantization of texel features (VQ-VAE style, straight-through estimator).
 
-Owns: :class:`VectorQuantizer`. Decisions (see ``shared/reference/stability-and-metrics.md`` A5):
+Owns: :class:`VectorQuantizer`. Decisions (``docs/stability.md`` lists the cases that test them):
 
 - Distances are computed in float32 on vectors centred by the codebook mean, in the expanded form
   ``|e_c|^2 - 2 x_c . e_c`` (the ``|x_c|^2`` term does not change the argmin). Centring keeps assignments

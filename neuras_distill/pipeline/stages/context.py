@@ -95,7 +95,7 @@ class RunContext:
         device: where the field, the teacher and training compute (``neuras_distill.device``); on a GPU
             ``field`` is replaced by a :class:`~neuras_distill.device_field.DeviceField` after the fingerprint (of the
             host field: the same keys on every device) is taken.
-        pool: a :class:`~neuras_distill.parallel.RenderPool` sharing the teacher's renders and training
+        pool: a :class:`~neuras_distill.pipeline.parallel.RenderPool` sharing the teacher's renders and training
             (``--nproc N``), or None (one process).
     """
 

@@ -31,7 +31,7 @@ from datetime import timedelta
 import numpy as np
 import torch
 
-from .errors import BadInputError, require
+from ..errors import BadInputError, require
 
 #: Seconds a collective operation may wait for the other ranks before the run gives up (a worker's share of a
 #: large teacher can take many minutes; a worker that dies is noticed at once, its connection closes).
@@ -77,8 +77,8 @@ def _free_port() -> int:
 
 def _render_share(field, request: RenderRequest, rank: int, world: int) -> list[tuple[int, dict]]:
     """Render views ``rank, rank + world, ...`` of the request: [(view index, {rgb, opacity, depths...})]."""
-    from .render.cameras import Cameras
-    from .render.volume import VolumeRenderer
+    from ..render.cameras import Cameras
+    from ..render.volume import VolumeRenderer
 
     cameras = Cameras.from_json(request.cameras)
     renderer = VolumeRenderer(field, **request.renderer_kwargs)
@@ -123,8 +123,8 @@ class _StoredState:
 
 def _fit_share(payload: FitPayload, rank: int, world: int) -> None:
     """Rank ``rank``'s part of a data-parallel fit (its model copy is dropped afterwards)."""
-    from .neural.data_parallel import GradientExchange
-    from .neural.train import fit
+    from ..neural.data_parallel import GradientExchange
+    from ..neural.train import fit
 
     a = payload.arrays
     fit(payload.model, a["uv"], a["coverage"], a["dirs"], a["targets"], skybox=payload.skybox,
@@ -214,7 +214,7 @@ class RenderPool:
         each view's render time on the rank that rendered it, while the others rendered theirs)."""
         import time
 
-        from .render.field_renders import FieldRenders
+        from ..render.field_renders import FieldRenders
 
         request = RenderRequest(cameras.to_json(), renderer_settings(renderer), depths)
         old = torch.get_num_threads()
@@ -256,8 +256,8 @@ class RenderPool:
         ``TrainLog``; ``model`` and ``skybox`` are trained in place as by ``fit``."""
         import copy
 
-        from .neural.data_parallel import GradientExchange
-        from .neural.train import fit
+        from ..neural.data_parallel import GradientExchange
+        from ..neural.train import fit
 
         kwargs = dict(kwargs)
         kwargs["num_threads"] = threads_per_process(self.nproc)
