@@ -239,6 +239,21 @@ def test_clean_removes_junk(sphere_mesh):
     assert is_watertight(cleaned.faces)
 
 
+def test_clean_keeps_a_small_component_the_views_see_as_surface(sphere_mesh):
+    """A small piece is a floater unless the training views see the field's surface on it (a dark floor tile a
+    partly trained field set apart from its neighbours): with two seen points on it, it stays."""
+    v, f = sphere_mesh.vertices, sphere_mesh.faces
+    tile = np.array([[2.0, 0.0, 0.0], [2.1, 0.0, 0.0], [2.0, 0.1, 0.0], [2.1, 0.1, 0.0]], dtype=np.float32)
+    n = len(v)
+    mesh = MeshData(np.concatenate([v, tile]), np.concatenate([f, [[n, n + 1, n + 2], [n + 1, n + 3, n + 2]]]))
+    assert clean_mesh(mesh).num_faces == sphere_mesh.num_faces            # a floater without evidence
+    seen = np.array([[2.04, 0.03, 0.0], [2.07, 0.06, 0.001]])
+    kept = clean_mesh(mesh, keep_near=seen, keep_radius=0.1)
+    assert kept.num_faces == sphere_mesh.num_faces + 2 and kept.stats["clean_components_kept_seen"] == 1
+    one = clean_mesh(mesh, keep_near=seen[:1], keep_radius=0.1)           # one point is not enough
+    assert one.num_faces == sphere_mesh.num_faces and one.stats["clean_components_removed"] == 1
+
+
 def test_face_components_join_faces_that_share_a_vertex():
     from neuras_distill.geometry.cleanup import face_components
 

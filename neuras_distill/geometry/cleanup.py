@@ -118,13 +118,23 @@ def _require_resolved(v: np.ndarray, f: np.ndarray) -> None:
                             "centre) first")
 
 
-def clean_mesh(mesh: MeshData, *, min_component_fraction: float = 0.005) -> MeshData:
+#: A small component is kept when at least this many of the points the views see as the field's surface
+#: (``keep_near``) lie on it.
+MIN_SEEN_POINTS = 2
+
+
+def clean_mesh(mesh: MeshData, *, min_component_fraction: float = 0.005, keep_near: np.ndarray | None = None,
+               keep_radius: float = 0.0) -> MeshData:
     """Return a cleaned copy of ``mesh`` (see module docstring).
 
     Args:
         mesh: vertices (V, 3), faces (F, 3).
         min_component_fraction: components with fewer faces than this fraction of the largest component are
-            dropped (0 keeps all).
+            dropped (0 keeps all) ...
+        keep_near: ... unless at least :data:`MIN_SEEN_POINTS` of these (M, 3) points (where the training views
+            see the field's surface on this mesh: ``visibility.seen_surface_points``) lie within ``keep_radius``
+            of one of their vertices: a piece the views show is a surface, however small (the dark tiles of a
+            partly trained field's checkered floor came out of depth fusion as islands of a few hundred faces).
 
     Returns:
         MeshData with ``stats`` = input stats plus ``clean_faces_in``, ``clean_faces_out``,
@@ -157,11 +167,14 @@ def clean_mesh(mesh: MeshData, *, min_component_fraction: float = 0.005) -> Mesh
     ms.meshing_remove_unreferenced_vertices()
     v, f = _from_meshset(ms)
     del ms                                 # MeshLab's copy (870 MB at 6.7 M faces) before the components
-    removed = 0
+    removed = kept_seen = 0
     if min_component_fraction > 0 and f.shape[0] > 0:
         labels = face_components(f, len(v))
         sizes = np.bincount(labels)
         big = sizes >= min_component_fraction * sizes.max()
+        if keep_near is not None and len(keep_near) and not big.all():
+            big |= _seen_components(v, f, labels, keep_near, keep_radius)
+            kept_seen = int(big.sum() - (sizes >= min_component_fraction * sizes.max()).sum())
         removed = int((~big[np.unique(labels)]).sum())
         if removed:
             f = f[big[labels]]
@@ -169,7 +182,23 @@ def clean_mesh(mesh: MeshData, *, min_component_fraction: float = 0.005) -> Mesh
     stats = dict(mesh.stats)
     stats.update(clean_faces_in=mesh.num_faces, clean_faces_out=int(f.shape[0]),
                  clean_components_removed=removed, clean_seconds=time.perf_counter() - t0)
+    if keep_near is not None:
+        stats["clean_components_kept_seen"] = kept_seen
     return MeshData(v.astype(np.float32), f.astype(np.int32), None, stats)
+
+
+def _seen_components(v: np.ndarray, f: np.ndarray, labels: np.ndarray, points: np.ndarray,
+                     radius: float) -> np.ndarray:
+    """(C,) bool: components (``labels`` (F,) of faces ``f`` over vertices ``v``) with at least
+    :data:`MIN_SEEN_POINTS` of ``points`` (M, 3) within ``radius`` of one of their vertices."""
+    from scipy.spatial import cKDTree
+
+    vertex_label = np.full(len(v), -1, dtype=np.int64)
+    vertex_label[f.reshape(-1)] = np.repeat(labels, 3)
+    dist, nearest = cKDTree(v).query(np.asarray(points, dtype=np.float64), distance_upper_bound=max(radius, 1e-12))
+    owner = vertex_label[nearest[np.isfinite(dist)]]
+    counts = np.bincount(owner[owner >= 0], minlength=int(labels.max()) + 1)
+    return counts >= MIN_SEEN_POINTS
 
 
 # ---------------------------------------------------------------------------------------------- smoothing

@@ -22,7 +22,7 @@ from .depth_fusion import fused_depth_sdf
 from .marching import folded_fraction, marching_cubes_field
 from .mesh import MeshData
 from .unwrap import MAX_UNWRAP_FACES, UnwrapFailed, unwrap
-from .visibility import cull_unseen_faces, missed_opaque_fraction
+from .visibility import cull_unseen_faces, missed_opaque_fraction, seen_surface_points
 
 #: The library's defaults are the configuration's (one place: ``config.py``).
 _GEOMETRY = GeometryConfig()
@@ -53,6 +53,12 @@ FUSION_TRUNCATION_VOXELS = 6.0
 LEVEL_SET_MAX_MISSED = 0.02
 #: Pixels inside the opaque region that count for that test: holes, not the silhouette's rim.
 HOLE_INSET_PX = 2
+#: The inset of the stage-by-stage hole count (``stats['missed_after_<step>']``): one pixel, so that holes a few
+#: pixels wide (a far floor tile) count; the test above would erode them away.
+STAGE_HOLE_INSET_PX = 1
+#: A mesh point within this many voxels of the field's surface depth along a training ray is where the views see
+#: that surface (``visibility.seen_surface_points``), and a component within it of such points is kept.
+SEEN_SURFACE_VOXELS = 2.0
 #: A density field's decimated level set whose core has more than this share of adjacent faces folded (normals
 #: over 90 degrees apart, ``marching.folded_fraction``) is tangled: the from-ngp ball's colour-level core, inside
 #: its noisy fog, came out of decimation with 49% folded (smoothing its positions does not untangle it; xatlas
@@ -150,7 +156,16 @@ def extract_surface(field: Field, train_cameras, config: GeometryConfig = _GEOME
     if field_opacity is not None:
         def fringe_check(candidate: MeshData) -> float:
             return missed_opaque_fraction(candidate, train_cameras, field_opacity)
-    fusion = termination = None
+    fusion = termination = hole_check = seen_points = None
+    if field_depth is not None:
+        def hole_check(candidate: MeshData) -> float:
+            return missed_opaque_fraction(candidate, train_cameras, field_depth[2], threshold=0.5,
+                                          inset=STAGE_HOLE_INSET_PX)
+    if field_depth is not None and getattr(field, "kind", None) == "density":
+        def seen_points(candidate: MeshData) -> np.ndarray:
+            voxel = float(candidate.stats.get("voxel_size", 0.0) or 0.0)
+            return seen_surface_points(candidate, train_cameras, field_depth[0], field_depth[2],
+                                       tolerance=SEEN_SURFACE_VOXELS * voxel)
     if field_depth is not None and getattr(field, "kind", None) == "density":
         surface_depths, fringe_depths, opacities = field_depth
         if fringe_check is not None and core_level == "colour":
@@ -169,7 +184,7 @@ def extract_surface(field: Field, train_cameras, config: GeometryConfig = _GEOME
                                     depth_fusion=depth_fusion, termination=termination, shell=shell)
         timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling (and the fusion)
         mesh, layout = _simplify(mesh, train_cameras, timings, face_budget=face_budget, cull_unseen=cull_unseen,
-                                 cull_margin_deg=cull_margin_deg)
+                                 cull_margin_deg=cull_margin_deg, hole_check=hole_check, seen_points=seen_points)
         return Surface(mesh, layout, mesh, int(trial_resolution))
 
     def with_trial(surface: Surface) -> Surface:
@@ -301,31 +316,55 @@ def trial_vertex_sources(mesh: MeshData, unwrapped: MeshData) -> np.ndarray:
     return source
 
 
+#: The steps after which ``stats['missed_after_<step>']`` measures the mesh's holes (``hole_check``).
+HOLE_STEPS = ("marching_cubes", "clean", "decimate", "cull")
+
+
 def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int, cull_unseen: bool,
-              cull_margin_deg: float) -> tuple[MeshData, np.ndarray | None]:
+              cull_margin_deg: float, hole_check=None, seen_points=None) -> tuple[MeshData, np.ndarray | None]:
     """Clean, decimate and cull (each layer on its own) a marching-cubes mesh. Returns the mesh (with the
-    steps' stats) and the positions its charts are laid out from (None for one layer)."""
+    steps' stats) and the positions its charts are laid out from (None for one layer).
+
+    ``hole_check`` (mesh -> fraction of the opaque training pixels it misses) measures the core layer after
+    marching cubes and after each step: ``stats['missed_after_<step>']`` (:data:`HOLE_STEPS`), so a hole in the
+    final mesh is traced to the step that made it. ``seen_points`` (mesh -> (M, 3) points where the training
+    views see it as the field's surface) keeps the core's small components that the views show
+    (``cleanup.clean_mesh``'s ``keep_near``)."""
     n_mc = mesh.num_faces
+    missed_after: dict = {}
+    if hole_check is not None:
+        missed_after["marching_cubes"] = hole_check(mesh.layers()[0])
     layers = mesh.layers()
     budgets = [face_budget] if len(layers) == 1 else [face_budget - shell_budget(face_budget),
                                                       shell_budget(face_budget)]
     done, counts = [], {"clean": 0, "dec": 0, "culled": 0}
     for layer, budget in zip(layers, budgets):
         t = time.perf_counter()
-        layer = smooth_rough(clean_mesh(layer))
+        keep = {}
+        if seen_points is not None and not done:
+            keep = dict(keep_near=seen_points(layer),
+                        keep_radius=SEEN_SURFACE_VOXELS * float(layer.stats.get("voxel_size", 0.0) or 0.0))
+        layer = smooth_rough(clean_mesh(layer, **keep))
         timings["clean"] = timings.get("clean", 0.0) + time.perf_counter() - t
         counts["clean"] += layer.num_faces
+        core = hole_check is not None and not done
+        if core:
+            missed_after["clean"] = hole_check(layer)
 
         t = time.perf_counter()
         layer = decimate_in_blocks(layer, budget)
         timings["decimate"] = timings.get("decimate", 0.0) + time.perf_counter() - t
         counts["dec"] += layer.num_faces
+        if core:
+            missed_after["decimate"] = hole_check(layer)
 
         if cull_unseen:           # each layer alone: the shell must not hide the core from the cameras
             t = time.perf_counter()
             layer = cull_unseen_faces(layer, train_cameras, margin_deg=cull_margin_deg)
             timings["cull"] = timings.get("cull", 0.0) + time.perf_counter() - t
             counts["culled"] += int(layer.stats.get("culled_faces", 0))
+            if core:
+                missed_after["cull"] = hole_check(layer)
         done.append(layer)
     layouts = [chart_layout(layer) for layer in done]
     if len(done) == 1:
@@ -342,6 +381,7 @@ def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int,
         layout = np.concatenate([layouts[0], centre + SHELL_TEXEL_SCALE * (layouts[1] - centre)])
     mesh.stats.update(faces_marching_cubes=n_mc, faces_after_clean=counts["clean"],
                       faces_after_decimation=counts["dec"], culled_faces=counts["culled"],
+                      **{f"missed_after_{k}": v for k, v in missed_after.items()},
                       **{f"seconds_{k}": v for k, v in timings.items()})
     return mesh, layout
 

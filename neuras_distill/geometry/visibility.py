@@ -105,6 +105,34 @@ def missed_opaque_fraction(mesh: MeshData, cameras, opacity: np.ndarray, *, thre
     return missed / wanted if wanted else 0.0
 
 
+def seen_surface_points(mesh: MeshData, cameras, depths: np.ndarray, opacity: np.ndarray, *, tolerance: float,
+                        threshold: float = 0.5) -> np.ndarray:
+    """(M, 3) float64 points where the training views see ``mesh`` as the field's own surface: the first hit of
+    each pixel ray whose opacity reaches ``threshold`` and whose hit lies within ``tolerance`` (world units) of the
+    field's surface depth there. A piece of the mesh holding such points shows what the field's picture shows
+    (a floor tile a partly trained field made darker and set apart from its neighbours), not a floater.
+
+    Args:
+        mesh: vertices (V, 3), faces (F, 3) in the cameras' world frame.
+        cameras: ``Cameras`` (N views, W x H).
+        depths, opacity: (N, H, W) the field's surface depths (distance along the unit ray where the opacity
+            reaches 0.5; ``render.volume``) and opacities in those views.
+    """
+    scene = _raycasting_scene(mesh)
+    found = []
+    for i in range(len(cameras)):
+        opaque = (np.asarray(opacity[i]) >= threshold) & (np.asarray(depths[i]) > 0)
+        if not opaque.any():
+            continue
+        o, d = cameras.rays(i)
+        o, d = o.reshape(-1, 3).numpy()[opaque.reshape(-1)], d.reshape(-1, 3).numpy()[opaque.reshape(-1)]
+        rays = np.concatenate([o, d], axis=1).astype(np.float32)
+        ids, t_hit = cast_rays(scene, rays)
+        near = (ids >= 0) & (np.abs(t_hit - np.asarray(depths[i]).reshape(-1)[opaque.reshape(-1)]) <= tolerance)
+        found.append(o[near].astype(np.float64) + d[near].astype(np.float64) * t_hit[near, None])
+    return np.concatenate(found) if found else np.zeros((0, 3))
+
+
 def _raycasting_scene(mesh: MeshData):
     """The ray-casting scene of ``mesh`` (vertices (V, 3), faces (F, 3)) in its own frame."""
     return raycasting_scene(mesh.vertices, mesh.faces)
@@ -187,4 +215,4 @@ def cull_unseen_faces(mesh: MeshData, cameras, *, max_rays_per_camera: int = 655
     return MeshData(mesh.vertices[used], remap[faces], uvs, stats)
 
 
-__all__ = ["cull_unseen_faces", "missed_opaque_fraction", "neighbour_cameras", "seen_faces"]
+__all__ = ["cull_unseen_faces", "missed_opaque_fraction", "neighbour_cameras", "seen_faces", "seen_surface_points"]
