@@ -87,3 +87,24 @@ def test_a_skybox_left_out_of_near_misses_keeps_the_sky_there():
     smeared = (trained_on - blue).abs().max(dim=-1).values.median()
     assert kept < 0.12, kept                                       # the sky stays sky where the lamp was
     assert smeared > kept + 0.1, (smeared, kept)                   # trained on the lamp, the sky turns red
+
+
+def test_the_skyboxes_share_of_content_inside_the_box_is_recorded():
+    """Uncovered pixels whose box content is partly opaque (below the near-miss level) are still the skyboxes'
+    to learn; the decision record says what share of their pixels they are."""
+    from neuras_distill.pipeline.choices import Decisions, sky_training_pixels
+
+    h, w = 4, 5
+    depth = np.zeros((1, h, w), np.float32)
+    coverage = np.zeros((1, h, w), bool)
+    coverage[0, 3, :] = True                              # 15 uncovered pixels, none a near miss
+    opacity = np.zeros((1, h, w), np.float32)
+    opacity[0, 0, :] = 0.3                                # 5 of them: 30% opaque inside the box
+    opacity[0, 1, :2] = 0.1                               # faint haze: not counted
+    record = Decisions()
+    learnt = sky_training_pixels(depth, depth, coverage, *_rays(h, w),
+                                 torch.tensor([[-2.0, -2.0, -1.0], [2.0, 2.0, 1.0]]), record, opacities=opacity)
+    assert int(learnt.sum()) == 15
+    entry = next(d for d in record.to_json() if d["component"] == "skybox pixels inside the box")
+    assert entry["measured"]["sky_inside_box_pixels"] == 5
+    assert entry["measured"]["sky_inside_box_fraction"] == pytest.approx(5 / 15)

@@ -85,14 +85,27 @@ def skyboxes(mode: str, coverage: np.ndarray, background: Background, record: De
 
 
 def sky_training_pixels(surface_depths: np.ndarray, fringe_depths: np.ndarray, coverage: np.ndarray,
-                        origins: np.ndarray, dirs: np.ndarray, aabb, record: Decisions) -> np.ndarray:
+                        origins: np.ndarray, dirs: np.ndarray, aabb, record: Decisions,
+                        opacities: np.ndarray | None = None) -> np.ndarray:
     """(N, H, W) bool: the uncovered training pixels the skyboxes learn from: all but the near misses
     (``rules.near_miss_pixels``: the field shows a surface, or the fringe of one beside the mesh, inside its
     foreground box that the mesh missed). ``surface_depths``, ``fringe_depths`` (N, H, W): where the field's
     opacity reaches 0.5 and the fringe level. ``origins`` (N, 3), ``dirs`` (N, H, W, 3): the training rays.
-    Leaving them out is recorded with their share of the pixels."""
+    Leaving them out is recorded with their share of the pixels. With ``opacities`` (N, H, W), the field's opacity
+    inside its box, what the skyboxes still take over inside the box is recorded too: the share of their pixels
+    whose box content is at least ``rules.SKY_INSIDE_BOX_OPACITY`` opaque (content the mesh missed that they
+    paint from far away, where it slides against its neighbours as the camera moves)."""
     near = rules.near_miss_pixels(surface_depths, fringe_depths, coverage, origins, dirs, aabb)
     uncovered = ~coverage
+    if opacities is not None and uncovered.any():
+        learnt = uncovered & ~near
+        inside = learnt & (np.asarray(opacities) >= rules.SKY_INSIDE_BOX_OPACITY)
+        taken = float(inside.sum() / max(int(learnt.sum()), 1))
+        record.keep("skybox pixels inside the box",
+                    f"{100 * taken:.2f}% of the pixels the skyboxes learn ({100 * inside.mean():.2f}% of all training "
+                    f"pixels) show content inside the foreground box at least "
+                    f"{100 * rules.SKY_INSIDE_BOX_OPACITY:.0f}% opaque that the mesh missed: the skyboxes paint it "
+                    "from far away", sky_inside_box_fraction=taken, sky_inside_box_pixels=int(inside.sum()))
     share = float(near.sum() / max(int(uncovered.sum()), 1))
     if near.any():
         record.leave_out("skybox training on near misses",

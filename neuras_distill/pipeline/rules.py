@@ -58,6 +58,12 @@ NEAR_MISS_BOX_MARGIN = 0.01
 NEAR_MISS_FRINGE_REACH = 0.02
 
 
+#: A skybox pixel whose ray holds at least this opacity inside the foreground box shows content the mesh missed
+#: there (``choices.sky_training_pixels`` reports their share; below 0.5 they are not near misses, so the skyboxes
+#: still learn them).
+SKY_INSIDE_BOX_OPACITY = 0.2
+
+
 def near_miss_pixels(surface_depths: np.ndarray, fringe_depths: np.ndarray, coverage: np.ndarray,
                      origins: np.ndarray, dirs: np.ndarray, aabb, margin: float = NEAR_MISS_BOX_MARGIN,
                      fringe_reach: float = NEAR_MISS_FRINGE_REACH) -> np.ndarray:

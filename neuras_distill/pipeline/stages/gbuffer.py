@@ -61,7 +61,7 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
         sky_origins = views.sky_layers.relative(train.centers.double().numpy()).numpy()
         sky_pixels = choices.sky_training_pixels(teacher.surface_depths, teacher.fringe_depths, gbuffer.coverage,
                                                  train.centers.numpy(), dirs[..., :3], ctx.field.aabb,
-                                                 ctx.decisions)
+                                                 ctx.decisions, opacities=teacher.opacities)
     missed = ~gbuffer.coverage
     if use_skybox or (missed.any() and not ctx.background.constant):
         # the clear colour: what the missed training pixels show on average (skyboxes draw over it)
