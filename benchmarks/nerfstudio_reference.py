@@ -10,7 +10,8 @@ renderer took for each). RUN_DIR is a run of ``neuras-distill from-nerfstudio FI
 PSNR of teacher and bundle against nerfstudio's renders over the whole frame, inside the box (where the teacher's
 box opacity is at least 0.5, as the report splits) and outside it, the holes of the bundle's mesh (the teacher's
 box opacity above 0.5 where the mesh covers no pixel, ``metrics.hole_fraction``), and the seconds a view took
-nerfstudio's renderer and our teacher (the torch threads of this process); writes ``nerfstudio_teacher_bundle.png`` (rows: views; columns: nerfstudio | teacher | bundle) and
+nerfstudio's renderer and our teacher (the torch threads of this process); writes
+``nerfstudio_teacher_bundle.png`` (rows: views; columns: nerfstudio | teacher | bundle) and
 ``far_crops.png`` (the same columns, native-resolution crops of the top third of each frame: the skyline and
 sky) into ``--out`` (default RUN_DIR).
 """

@@ -3,7 +3,8 @@
 Two objects (a red sphere and a blue box) on a checkered ground plane that reaches a distant backdrop (a
 cylinder of radius :data:`BACKDROP_RADIUS` with a skyline of buildings, striped by floor), and a sky gradient
 above it. Two grounds (``ground=``): "soft", a low-contrast checker fading out within a few metres, and
-"checker", a high-contrast one (near-black and near-white squares) that keeps its contrast to the horizon. World frame: z up, metres. Cameras: a full orbit at radius 3, 1.2 m up, looking at the objects;
+"checker", a high-contrast one (near-black and near-white squares) that keeps its contrast to the horizon.
+World frame: z up, metres. Cameras: a full orbit at radius 3, 1.2 m up, looking at the objects;
 OpenGL convention (x right, y up, looking down -z), as nerfstudio's ``transforms.json`` stores them.
 
 :func:`render_view` returns an (H, W, 3) float image in [0, 1] (2x2 supersampled); :func:`orbit_c2w` the poses.
