@@ -110,3 +110,23 @@ def test_the_coarse_level_is_kept_only_where_texels_are_short_of_samples():
     assert not left.kept and "2048 samples" in left.reason and left.measured["samples_per_texel"] == 2048
     assert kept.kept and "8 times coarser" in kept.reason and kept.measured["samples_per_texel"] < 2048
     assert not off.kept and "coarse_factor 1" in off.reason
+
+
+def test_only_choices_records_decisions():
+    """Every keep / leave-out decision is recorded in ``pipeline/choices.py`` (docs/architecture.md): a stage asks
+    choices, which records; no other module calls ``Decisions.keep`` or ``Decisions.leave_out``."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    home = root / "neuras_distill" / "pipeline" / "choices.py"
+    elsewhere = []
+    for path in sorted([*(root / "neuras_distill").rglob("*.py"), *(root / "adapters").rglob("*.py")]):
+        if path == home:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                    and node.func.attr in ("keep", "leave_out")):
+                elsewhere.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert elsewhere == []
+    assert "record.keep(" in home.read_text() and "record.leave_out(" in home.read_text()

@@ -329,3 +329,132 @@ def core_view_dependence(field: Field, mesh, cfg: DistillConfig, use_viewdir: bo
                      f"view (mean spread {spread:.4f} < {cfg.texture.view_threshold}); only the fringe shell's "
                      "shader takes the direction", spread=spread)
     return False
+
+
+def surface_source(stats: dict, record: Decisions) -> None:
+    """A density field's mesh from its fused surface depths instead of its level set, and why."""
+    if "fused_depths_missed" not in stats:
+        return
+    missed, fused = 100 * stats["level_set_missed"], 100 * stats["fused_depths_missed"]
+    measured = dict(level_set_missed=missed, fused_depths_missed=fused)
+    if stats.get("level_set_defect") == "tangled":
+        folded, fused_folded = 100 * stats["level_set_folded"], 100 * stats["fused_depths_folded"]
+        measured.update(level_set_folded=folded, fused_depths_folded=fused_folded)
+        if stats.get("surface_from_depths"):
+            record.keep("surface from fused depths", f"the density's decimated level set is tangled "
+                               f"({folded:.0f}% of adjacent faces folded); the teacher's fused surface depths: "
+                               f"{fused_folded:.1f}% folded, {fused:.1f}% of the opaque training pixels missed",
+                               **measured)
+        else:
+            record.leave_out("surface from fused depths", f"the level set is tangled ({folded:.0f}% of "
+                                    f"adjacent faces folded) but the fused depths are no better ({fused_folded:.1f}% "
+                                    f"folded, {fused:.1f}% of the opaque training pixels missed)", **measured)
+        return
+    if stats.get("surface_from_depths"):
+        record.keep("surface from fused depths", f"the density's level set missed {missed:.1f}% of the "
+                           f"opaque training pixels (a perforated surface); the teacher's fused surface depths "
+                           f"miss {fused:.1f}%", **measured)
+    else:
+        record.leave_out("surface from fused depths", f"the level set missed {missed:.1f}% of the opaque "
+                                f"training pixels but the fused depths missed more ({fused:.1f}%)", **measured)
+
+
+def atlas_pages(stats: dict, record: Decisions) -> None:
+    """An atlas side above ``texture.page_size``: the pages it was packed into."""
+    from ..geometry.unwrap import atlas_shape
+
+    height, side, pages = atlas_shape(stats)
+    if pages > 1:
+        record.keep("atlas pages", f"the {stats['uv_resolution']}x{stats['uv_resolution']} atlas is above "
+                           f"texture.page_size ({side}): its charts, at the same texels per unit, fill {pages} "
+                           f"pages of {side}x{side}, played as a texture array", pages=pages, page_size=side)
+
+
+def atlas_side(tex_res: int, density: dict, hi: int, record: Decisions) -> None:
+    """The atlas side the texel density chose (``density``: ``stages.geometry.choose_atlas_side``'s figures),
+    capped at ``hi`` (``texture.max_resolution``) and by the training budget."""
+    capped = density["exact"] > hi
+    ppt = rules.PIXELS_PER_TEXEL
+    record.leave_out(
+        "texels beyond the training views' detail",
+        f"atlas {tex_res}x{tex_res} chosen from texel density: the training views see {density['pixels']:.0f} "
+        f"pixels of surface on {100 * density['uv_area']:.1f}% of the atlas, one texel per {ppt:g}x{ppt:g} pixels "
+        f"at {density['exact']:.0f}"
+        + (f" (set by the fringe shell: {density['shell_pixels']:.0f} pixels on "
+           f"{100 * density['shell_uv_area']:.1f}% of the atlas at a quarter of the texel density)"
+           if density.get("from_shell") else "")
+        + (f" (capped at max_resolution {hi})" if capped else "")
+        + (f"; limited to {density['budget']} by the training budget ({density['samples']} samples, "
+           f"{rules.SAMPLES_PER_TEXEL} per used texel)" if density["budget"] < density["exact"] else ""),
+        side=tex_res, **{k: v for k, v in density.items() if isinstance(v, (int, float))})
+
+
+def larger_atlas_for_small_charts(tex_res: int, charts: int, density: dict, record: Decisions) -> None:
+    """The atlas unwrapped again at a larger side because its charts' padding left too few texels."""
+    record.keep(
+        "a larger atlas for small charts",
+        f"at {density['regrown_from']}x{density['regrown_from']} the {charts} UV charts' padding left "
+        f"{100 * density['texel_yield']:.0f}% of the texels the surface needs; unwrapped again at "
+        f"{tex_res}x{tex_res} ({100 * density['texel_yield_after']:.0f}%)",
+        side=tex_res, texel_yield=density["texel_yield"], texel_yield_after=density["texel_yield_after"])
+
+
+def view_weighted_texels(weights: np.ndarray, record: Decisions) -> None:
+    """Charts sized by the texel densities the views want (``weights`` (F,), ``rules.view_texel_weights``)."""
+    spread = np.percentile(weights, [10, 50, 90])
+    record.keep(
+        "texels where the views need them",
+        f"charts (within tiles of 1/48 of the scene) sized by the training pixels per unit area that the view "
+        f"seeing them largest gives, not by their 3D area (texture.view_weighted_texels): wanted densities "
+        f"span {spread[2] / spread[0]:.0f}x between the 10th and 90th percentile of faces",
+        p10=float(spread[0]), p50=float(spread[1]), p90=float(spread[2]))
+
+
+def unseen_faces(culled: int, record: Decisions) -> None:
+    """Faces culled because no training camera (or its neighbours) saw them."""
+    if culled:
+        record.leave_out("unseen faces", f"{culled} faces seen by no training camera were culled before "
+                                         "unwrapping (they get no texels)", culled_faces=culled)
+
+
+def training_steps(plan, steps: int, needed: int, used: float, record: Decisions) -> str:
+    """Record the training length (``steps``; ``needed`` would give ``rules.TARGET_SAMPLES_PER_TEXEL`` samples to
+    each of ``used`` texels) against ``plan`` (a ``TrainingPlan``); returns the reason."""
+    target = rules.TARGET_SAMPLES_PER_TEXEL
+    if plan.configured_steps:
+        why = f"{steps} steps as configured ({needed} would give {target} samples per used texel)"
+    elif needed > plan.max_steps:
+        why = (f"{steps} steps: the {plan.time_budget_s:.0f} s cap (at {plan.steps_per_second:.0f} steps/s) "
+               f"affords fewer than the {needed} that give {target} samples to each of {int(used)} used texels")
+    else:
+        why = (f"at most {steps} steps: they give {target} samples to each of {int(used)} used texels (at least "
+               f"{rules.MIN_TRAIN_STEPS}); training stops sooner if the held-back pixels stop improving")
+    record.leave_out("training beyond the atlas's needs", why, steps=int(steps), needed_steps=int(needed))
+    return why
+
+
+def render_widths(test_width: int, train_width: int, eval_width: int, cfg: DistillConfig, record: Decisions) -> None:
+    """The teacher's and the held-out frames' widths, when the cameras' own width capped the configured ones."""
+    if (train_width, eval_width) == (cfg.teacher.train_width, cfg.eval.width or test_width):
+        return
+    record.leave_out(
+        "renders beyond the cameras' resolution",
+        f"the cameras are {test_width} pixels wide: the teacher renders at {train_width} and the held-out "
+        f"frames at {eval_width} pixels (the teacher at most {rules.MAX_UPSCALE:g}x the cameras' width, the "
+        f"held-out frames at most eval.max_upscale = {cfg.eval.max_upscale:g}x; 0 lifts that cap), not the "
+        f"configured {cfg.teacher.train_width} / {cfg.eval.width}", train_width=train_width,
+        eval_width=eval_width)
+
+
+def baked_leftovers(entries: list[dict], record: Decisions) -> None:
+    """What baking left out (``entries``: the manifest's ``left_out`` rows it added) into the run's record."""
+    for entry in entries:
+        record.leave_out(entry["component"], entry["reason"])
+
+
+def vector_quantization_skipped(touched: int, quantize_above: int, num_codes: int, record: Decisions) -> None:
+    """Texels kept exact because the ``touched`` ones fit the index texture."""
+    record.leave_out("vector quantization", f"the {touched} texels training touched fit the index "
+                     f"texture (at most texture.quantize_above = {quantize_above}): each keeps its "
+                     f"own feature, exact, instead of the nearest of {num_codes} k-means codes",
+                     touched_texels=touched)

@@ -25,8 +25,7 @@ def bake_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, trai
                   extra_manifest={"left_out": left_out, "view_dependence": distilled.model.use_viewdir,
                                   "cull_back_faces": cfg.geometry.cull_back_faces, "silhouette_blend": blend},
                   skybox=distilled.skybox, origin=training.origin)
-    for entry in bundle.manifest["left_out"][len(left_out):]:
-        ctx.decisions.leave_out(entry["component"], entry["reason"])
+    choices.baked_leftovers(bundle.manifest["left_out"][len(left_out):], ctx.decisions)
     # the plain RGB texture (the glTF export's base colour, the report's baseline) travels in the bundle
     gb = training.gbuffer
     bundle.plain_rgb = plain_texture_rgb8(distilled.model, bundle.mesh, gb.uv, gb.coverage, training.dirs)

@@ -87,9 +87,6 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
         checkpoint.remove()
     if bool(model.vq_skipped):
         touched = int(model.touched.sum())
-        ctx.decisions.leave_out("vector quantization", f"the {touched} texels training touched fit the index "
-                                f"texture (at most texture.quantize_above = {t.quantize_above}): each keeps its "
-                                f"own feature, exact, instead of the nearest of {t.num_codes} k-means codes",
-                                touched_texels=touched)
+        choices.vector_quantization_skipped(touched, t.quantize_above, t.num_codes, ctx.decisions)
     ctx.clock.done(key=key, **{k: v for k, v in trained.log.items() if k != "entries"})
     return DistilledModel(model, skybox, trained.log)

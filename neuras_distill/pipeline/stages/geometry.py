@@ -62,29 +62,15 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     require(tex_res >= need, f"a {tex_res}x{tex_res} texture is too small for this mesh: its {charts} UV charts "
                              f"need at least {need}x{need} texels; raise --texture-resolution (or use 0 for "
                              f"automatic) or lower --face-budget")
-    _record_atlas_pages(ctx, mesh.stats)
+    choices.atlas_pages(mesh.stats, ctx.decisions)
     if auto_side:
-        _record_atlas_side(ctx, tex_res, density)
+        choices.atlas_side(tex_res, density, ctx.cfg.texture.max_resolution, ctx.decisions)
         if density.get("regrown_from"):
-            ctx.decisions.keep(
-                "a larger atlas for small charts",
-                f"at {density['regrown_from']}x{density['regrown_from']} the {charts} UV charts' padding left "
-                f"{100 * density['texel_yield']:.0f}% of the texels the surface needs; unwrapped again at "
-                f"{tex_res}x{tex_res} ({100 * density['texel_yield_after']:.0f}%)",
-                side=tex_res, texel_yield=density["texel_yield"], texel_yield_after=density["texel_yield_after"])
+            choices.larger_atlas_for_small_charts(tex_res, charts, density, ctx.decisions)
     if weighted:
-        spread = np.percentile(weights, [10, 50, 90])
-        ctx.decisions.keep(
-            "texels where the views need them",
-            f"charts (within tiles of 1/48 of the scene) sized by the training pixels per unit area that the view "
-            f"seeing them largest gives, not by their 3D area (texture.view_weighted_texels): wanted densities "
-            f"span {spread[2] / spread[0]:.0f}x between the 10th and 90th percentile of faces",
-            p10=float(spread[0]), p50=float(spread[1]), p90=float(spread[2]))
-    _record_surface_source(ctx, mesh.stats)
-    culled = int(mesh.stats.get("culled_faces", 0))
-    if culled:
-        ctx.decisions.leave_out("unseen faces", f"{culled} faces seen by no training camera were culled before "
-                                                "unwrapping (they get no texels)", culled_faces=culled)
+        choices.view_weighted_texels(weights, ctx.decisions)
+    choices.surface_source(mesh.stats, ctx.decisions)
+    choices.unseen_faces(int(mesh.stats.get("culled_faces", 0)), ctx.decisions)
     inputs = choose_shader_inputs(ctx, mesh, enclose)
     plan = fix_steps(ctx, plan, mesh)
     ctx.clock.done(key=key, **{k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))})
@@ -130,65 +116,10 @@ def choose_atlas_side(ctx: RunContext, surface: Surface, views: CameraSplit, pla
     return min(side, budget), dict(info, chosen=min(side, budget), budget=budget, samples=samples)
 
 
-def _record_surface_source(ctx: RunContext, stats: dict) -> None:
-    """A density field's mesh from its fused surface depths instead of its level set, and why."""
-    if "fused_depths_missed" not in stats:
-        return
-    missed, fused = 100 * stats["level_set_missed"], 100 * stats["fused_depths_missed"]
-    measured = dict(level_set_missed=missed, fused_depths_missed=fused)
-    if stats.get("level_set_defect") == "tangled":
-        folded, fused_folded = 100 * stats["level_set_folded"], 100 * stats["fused_depths_folded"]
-        measured.update(level_set_folded=folded, fused_depths_folded=fused_folded)
-        if stats.get("surface_from_depths"):
-            ctx.decisions.keep("surface from fused depths", f"the density's decimated level set is tangled "
-                               f"({folded:.0f}% of adjacent faces folded); the teacher's fused surface depths: "
-                               f"{fused_folded:.1f}% folded, {fused:.1f}% of the opaque training pixels missed",
-                               **measured)
-        else:
-            ctx.decisions.leave_out("surface from fused depths", f"the level set is tangled ({folded:.0f}% of "
-                                    f"adjacent faces folded) but the fused depths are no better ({fused_folded:.1f}% "
-                                    f"folded, {fused:.1f}% of the opaque training pixels missed)", **measured)
-        return
-    if stats.get("surface_from_depths"):
-        ctx.decisions.keep("surface from fused depths", f"the density's level set missed {missed:.1f}% of the "
-                           f"opaque training pixels (a perforated surface); the teacher's fused surface depths "
-                           f"miss {fused:.1f}%", **measured)
-    else:
-        ctx.decisions.leave_out("surface from fused depths", f"the level set missed {missed:.1f}% of the opaque "
-                                f"training pixels but the fused depths missed more ({fused:.1f}%)", **measured)
-
-
 def used_texels(mesh) -> float:
     """Texels the unwrapped ``mesh``'s charts cover in its atlas (all its pages)."""
     height, width, _ = atlas_shape(mesh.stats)
     return min(1.0, mesh.uv_area()) * height * width
-
-
-def _record_atlas_pages(ctx: RunContext, stats: dict) -> None:
-    """An atlas side above ``texture.page_size``: the pages it was packed into."""
-    height, side, pages = atlas_shape(stats)
-    if pages > 1:
-        ctx.decisions.keep("atlas pages", f"the {stats['uv_resolution']}x{stats['uv_resolution']} atlas is above "
-                           f"texture.page_size ({side}): its charts, at the same texels per unit, fill {pages} "
-                           f"pages of {side}x{side}, played as a texture array", pages=pages, page_size=side)
-
-
-def _record_atlas_side(ctx: RunContext, tex_res: int, density: dict) -> None:
-    hi = ctx.cfg.texture.max_resolution
-    capped = density["exact"] > hi
-    ppt = rules.PIXELS_PER_TEXEL
-    ctx.decisions.leave_out(
-        "texels beyond the training views' detail",
-        f"atlas {tex_res}x{tex_res} chosen from texel density: the training views see {density['pixels']:.0f} "
-        f"pixels of surface on {100 * density['uv_area']:.1f}% of the atlas, one texel per {ppt:g}x{ppt:g} pixels "
-        f"at {density['exact']:.0f}"
-        + (f" (set by the fringe shell: {density['shell_pixels']:.0f} pixels on "
-           f"{100 * density['shell_uv_area']:.1f}% of the atlas at a quarter of the texel density)"
-           if density.get("from_shell") else "")
-        + (f" (capped at max_resolution {hi})" if capped else "")
-        + (f"; limited to {density['budget']} by the training budget ({density['samples']} samples, "
-           f"{rules.SAMPLES_PER_TEXEL} per used texel)" if density["budget"] < density["exact"] else ""),
-        side=tex_res, **{k: v for k, v in density.items() if isinstance(v, (int, float))})
 
 
 def choose_shader_inputs(ctx: RunContext, mesh, enclose: bool) -> ShaderInputs:
@@ -209,15 +140,6 @@ def fix_steps(ctx: RunContext, plan: TrainingPlan, mesh) -> TrainingPlan:
     steps, needed = rules.training_steps(used, plan.samples_per_step, plan.max_steps)
     if plan.configured_steps:
         steps = plan.configured_steps
-    target = rules.TARGET_SAMPLES_PER_TEXEL
-    if plan.configured_steps:
-        why = f"{steps} steps as configured ({needed} would give {target} samples per used texel)"
-    elif needed > plan.max_steps:
-        why = (f"{steps} steps: the {plan.time_budget_s:.0f} s cap (at {plan.steps_per_second:.0f} steps/s) "
-               f"affords fewer than the {needed} that give {target} samples to each of {int(used)} used texels")
-    else:
-        why = (f"at most {steps} steps: they give {target} samples to each of {int(used)} used texels (at least "
-               f"{rules.MIN_TRAIN_STEPS}); training stops sooner if the held-back pixels stop improving")
-    ctx.decisions.leave_out("training beyond the atlas's needs", why, steps=int(steps), needed_steps=int(needed))
+    why = choices.training_steps(plan, int(steps), int(needed), used, ctx.decisions)
     plan.steps, plan.needed_steps, plan.used_texels, plan.reason = int(steps), int(needed), int(used), why
     return plan

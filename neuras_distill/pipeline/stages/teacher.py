@@ -27,14 +27,7 @@ def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
     train_width = rules.capped_width(cfg.teacher.train_width, train_full.width)
     eval_width = (rules.capped_width(cfg.eval.width, test_full.width, cfg.eval.max_upscale) if cfg.eval.width
                   else test_full.width)
-    if (train_width, eval_width) != (cfg.teacher.train_width, cfg.eval.width or test_full.width):
-        ctx.decisions.leave_out(
-            "renders beyond the cameras' resolution",
-            f"the cameras are {test_full.width} pixels wide: the teacher renders at {train_width} and the held-out "
-            f"frames at {eval_width} pixels (the teacher at most {rules.MAX_UPSCALE:g}x the cameras' width, the "
-            f"held-out frames at most eval.max_upscale = {cfg.eval.max_upscale:g}x; 0 lifts that cap), not the "
-            f"configured {cfg.teacher.train_width} / {cfg.eval.width}", train_width=train_width,
-            eval_width=eval_width)
+    choices.render_widths(test_full.width, train_width, eval_width, cfg, ctx.decisions)
     train = with_extra_views(ctx, train_full.resized(train_width), cameras)
     test = test_full.resized(eval_width) if cfg.eval.width else test_full    # 0: the cameras' own size
     if ctx.root is not None:
