@@ -263,27 +263,11 @@ def small_run(tmp_path_factory):
     return result, out
 
 
-#: Words in a skip reason that say an outside tool (a real client the tests drive) is missing.
-MISSING_TOOL_WORDS = ("apt-get install", "npm", ".tools/", "no OpenGL", "no node")
-#: What installs every real client on Debian/Ubuntu (what ``.ci/run`` does before the tests).
-INSTALL_CLIENTS = ("sudo apt-get install chromium chromium-driver blender python3-numpy xvfb xauth nodejs npm "
-                   "&& bash scripts/setup.sh")
-
-
-def missing_tool_skips(skipped) -> list[str]:
-    """The skip reasons, among the ``skipped`` test reports, that name a missing outside tool."""
-    reasons = []
-    for report in skipped:
-        longrepr = getattr(report, "longrepr", None)
-        reason = str(longrepr[2] if isinstance(longrepr, tuple) and len(longrepr) == 3 else longrepr or "")
-        if any(word in reason for word in MISSING_TOOL_WORDS):
-            reasons.append(reason.removeprefix("Skipped: "))
-    return reasons
-
-
 def pytest_terminal_summary(terminalreporter):
     """One line after the summary when tests of real clients (Chromium, Blender, xvfb, node, OpenGL) were skipped
     because their tool is missing: how many, which tools, and the command that installs them."""
+    from real_clients import INSTALL_CLIENTS, missing_tool_skips
+
     reasons = missing_tool_skips(terminalreporter.stats.get("skipped", []))
     if reasons:
         tools = sorted({r.split(" is ")[0].split(" (")[0] for r in reasons})

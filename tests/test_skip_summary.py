@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from conftest import INSTALL_CLIENTS, missing_tool_skips
+from real_clients import INSTALL_CLIENTS, missing_tool_skips
 
 
 def _skipped(reason: str):
