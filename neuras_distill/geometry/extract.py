@@ -163,12 +163,12 @@ def extract_surface(field: Field, train_cameras, config: GeometryConfig = _GEOME
             return missed_opaque_fraction(candidate, train_cameras, field_depth[2], threshold=0.5,
                                           inset=HOLE_INSET_PX)
     if field_depth is not None and getattr(field, "kind", None) == "density":
+        surface_depths, fringe_depths, opacities = field_depth
+
         def seen_points(candidate: MeshData) -> np.ndarray:
             voxel = float(candidate.stats.get("voxel_size", 0.0) or 0.0)
-            return seen_surface_points(candidate, train_cameras, field_depth[0], field_depth[2],
+            return seen_surface_points(candidate, train_cameras, surface_depths, opacities,
                                        tolerance=SEEN_SURFACE_VOXELS * voxel)
-    if field_depth is not None and getattr(field, "kind", None) == "density":
-        surface_depths, fringe_depths, opacities = field_depth
         if fringe_check is not None and core_level == "colour":
             termination = termination_points(train_cameras, surface_depths, opacities)
 
@@ -317,20 +317,16 @@ def trial_vertex_sources(mesh: MeshData, unwrapped: MeshData) -> np.ndarray:
     return source
 
 
-#: The steps after which ``stats['missed_after_<step>']`` measures the mesh's holes (``hole_check``).
-HOLE_STEPS = ("marching_cubes", "clean", "decimate", "cull")
-
-
 def _simplify(mesh: MeshData, train_cameras, timings: dict, *, face_budget: int, cull_unseen: bool,
               cull_margin_deg: float, hole_check=None, seen_points=None) -> tuple[MeshData, np.ndarray | None]:
     """Clean, decimate and cull (each layer on its own) a marching-cubes mesh. Returns the mesh (with the
     steps' stats) and the positions its charts are laid out from (None for one layer).
 
     ``hole_check`` (mesh -> fraction of the opaque training pixels it misses) measures the core layer after
-    marching cubes and after each step: ``stats['missed_after_<step>']`` (:data:`HOLE_STEPS`), so a hole in the
-    final mesh is traced to the step that made it. ``seen_points`` (mesh -> (M, 3) points where the training
-    views see it as the field's surface) keeps the core's small components that the views show
-    (``cleanup.clean_mesh``'s ``keep_near``)."""
+    marching cubes and after each step: ``stats['missed_after_<step>']`` (marching_cubes, clean, decimate,
+    cull), so a hole in the final mesh is traced to the step that made it. ``seen_points`` (mesh -> (M, 3)
+    points where the training views see it as the field's surface) keeps the core's small components that the
+    views show (``cleanup.clean_mesh``'s ``keep_near``)."""
     n_mc = mesh.num_faces
     missed_after: dict = {}
     if hole_check is not None:
