@@ -6,7 +6,8 @@ Runs inside Blender (``bpy``), not in the package's Python:
 
 ``cameras.json`` is ``{"c2w": [N x 4 x 4], "fx": [...], "fy": [...], "cx": [...], "cy": [...], "width": W,
 "height": H, "background": [r, g, b]}`` in our world frame and OpenGL camera convention (``render/cameras.py``);
-the background colour is as displayed (sRGB, 0..1). Writes ``OUT_PREFIX<i>.png`` (8-bit RGB) per camera.
+the background colour is as displayed (sRGB, 0..1). Writes ``OUT_PREFIX<i>.png`` (8-bit RGB) per camera and
+``OUT_PREFIXobjects.json``: {mesh object name: its world translation in Blender's frame}.
 
 The importer (Blender's own io_scene_gltf2) turns glTF's +Y up into Blender's +Z up, so the cameras are turned
 the same way. Cycles renders (no OpenGL context needed) with the Standard view transform (Blender's default,
@@ -42,6 +43,9 @@ def main(glb: str, cameras_json: str, prefix: str) -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_scene.gltf(filepath=glb)
     scene = bpy.context.scene
+    # where the importer placed each mesh (the glTF node's translation, turned into Blender's Z-up frame)
+    placed = {o.name: list(o.matrix_world.translation) for o in scene.objects if o.type == "MESH"}
+    open(prefix + "objects.json", "w").write(json.dumps(placed))
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
     scene.cycles.samples = 4

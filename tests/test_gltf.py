@@ -268,8 +268,9 @@ def test_the_base_colour_is_the_stored_plain_texture(tmp_path):
     assert png == (folder / "plain_rgb.png").read_bytes()
     assert np.array_equal(np.asarray(Image.open(io.BytesIO(png))), load_bundle(folder).plain_rgb)
     position = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
-    np.testing.assert_allclose(position["min"], ORIGIN, atol=1e-4)                # the quad spans [0, 1]^2 x 0
-    np.testing.assert_allclose(position["max"], ORIGIN + [1.0, 1.0, 0.0], atol=1e-4)
+    np.testing.assert_allclose(position["min"], [0.0, 0.0, 0.0], atol=1e-6)      # the quad spans [0, 1]^2 x 0
+    np.testing.assert_allclose(position["max"], [1.0, 1.0, 0.0], atol=1e-6)      # relative to the origin ...
+    assert doc["nodes"][0]["translation"] == ORIGIN.tolist()                       # ... which the node carries
 
 
 # ------------------------------------------------------------------------------------------ bad input

@@ -55,10 +55,9 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return float("inf") if mse == 0 else 10.0 * np.log10(255.0 ** 2 / mse)
 
 
-@pytest.fixture(scope="module")
-def exported(small_run, tmp_path_factory):
-    """(the .glb, the bundle, the cameras, BundleRenderer's plain-texture frames (uint8), the same with the
-    texture flipped in v)."""
+def _exported(bundle_dir: Path, glb: Path, orbit_radius: float, cams=None):
+    """(the .glb, the bundle, three orbit cameras around its origin (or ``cams``), BundleRenderer's plain-texture
+    frames (uint8), the same with the texture flipped in v)."""
     from neuras_distill.bake.bundle import load_bundle
     from neuras_distill.bake.plain_texture import plain_bundle
     from neuras_distill.cli import main
@@ -66,11 +65,11 @@ def exported(small_run, tmp_path_factory):
     from neuras_distill.playback.view_modes import mode_bundle
     from neuras_distill.render.cameras import Cameras
 
-    _, out = small_run
-    glb = tmp_path_factory.mktemp("gltf-viewers") / "sphere.glb"
-    assert main(["export", str(out / "bundle"), "--format", "gltf", "--out", str(glb)]) == 0
-    bundle = load_bundle(out / "bundle")
-    cams = Cameras.orbit(bundle.origin.tolist(), 1.8, 3, width=SIZE, height=SIZE, elevation_deg=25.0, phase_deg=10.0)
+    assert main(["export", str(bundle_dir), "--format", "gltf", "--out", str(glb)]) == 0
+    bundle = load_bundle(bundle_dir)
+    if cams is None:
+        cams = Cameras.orbit(bundle.origin.tolist(), orbit_radius, 3, width=SIZE, height=SIZE, elevation_deg=25.0,
+                             phase_deg=10.0)
 
     def frames(b) -> list[np.ndarray]:
         with BundleRenderer(b) as player:
@@ -78,6 +77,46 @@ def exported(small_run, tmp_path_factory):
 
     flipped = np.ascontiguousarray(bundle.plain_rgb[::-1].astype(np.float32) / 255.0)
     return glb, bundle, cams, frames(mode_bundle(bundle, "plain")), frames(plain_bundle(bundle, flipped))
+
+
+@pytest.fixture(scope="module")
+def exported(small_run, tmp_path_factory):
+    """conftest's distilled sphere (``_exported``), seen from 1.8 units."""
+    _, out = small_run
+    return _exported(out / "bundle", tmp_path_factory.mktemp("gltf-viewers") / "sphere.glb", 1.8)
+
+
+@pytest.fixture(scope="module")
+def exported_utm(tmp_path_factory):
+    """The textured 10-unit sphere at UTM-like coordinates (``stability/georeferenced.py``) distilled with tiny
+    settings (``_exported``), seen from 24 units: its glb's node carries the origin, its positions are local; and
+    the same bundle moved to the origin, seen from the same cameras moved with it."""
+    import torch
+
+    import neuras_distill as nd
+    from neuras_distill.bake.bundle import load_bundle
+    from neuras_distill.playback.projection import shift_cameras
+    from neuras_distill.stability.extreme import make_extreme
+
+    field = make_extreme("geo-sphere-utm")
+    cfg = nd.load_config("fast", overrides={"train": {"steps": 200}, "eval": {"width": 48, "fps_frames": 2,
+                                                                              "runtime_steps": [32]},
+                                            "teacher": {"train_width": 64}, "geometry": {"face_budget": 3000},
+                                            "texture": {"resolution": 256, "num_codes": 64}})
+    folder = tmp_path_factory.mktemp("gltf-utm")
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        nd.distill(field, field.default_cameras(8, 64, 64), cfg, out=folder / "run", progress=False,
+                   log=lambda m: None)
+        utm = _exported(folder / "run" / "bundle", folder / "utm.glb", 24.0)
+        # the same bundle with its origin at (0, 0, 0) and the same cameras moved by it: the views are identical
+        at_zero = load_bundle(folder / "run" / "bundle")
+        at_zero.manifest["origin"] = [0.0, 0.0, 0.0]
+        at_zero.save(folder / "at-zero")
+        return utm, _exported(folder / "at-zero", folder / "at-zero.glb", 0.0, shift_cameras(utm[2], utm[1].origin))
+    finally:
+        torch.set_num_threads(old)
 
 
 def assert_matches_plain_player(name: str, got: list[np.ndarray], exported, threshold: float,
@@ -107,8 +146,8 @@ def blender_missing() -> str | None:
     return None
 
 
-def test_blender_imports_the_glb_and_renders_its_plain_texture(exported, require_tool, tmp_path):
-    require_tool(blender_missing())
+def blender_render(exported, tmp_path) -> tuple[list[np.ndarray], dict]:
+    """Blender's frames of the exported glb from its cameras, and where it placed each mesh object."""
     glb, bundle, cams, _, _ = exported
     spec = {"c2w": cams.c2w.double().tolist(), "fx": cams.fx.tolist(), "fy": cams.fy.tolist(),
             "cx": cams.cx.tolist(), "cy": cams.cy.tolist(), "width": cams.width, "height": cams.height,
@@ -123,11 +162,31 @@ def test_blender_imports_the_glb_and_renders_its_plain_texture(exported, require
     print(f"blender: {time.perf_counter() - t:.1f} s")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     got = [np.asarray(Image.open(tmp_path / f"blender{i}.png").convert("RGB")) for i in range(len(cams))]
+    return got, json.loads((tmp_path / "blenderobjects.json").read_text())
+
+
+def test_blender_imports_the_glb_and_renders_its_plain_texture(exported, require_tool, tmp_path):
+    require_tool(blender_missing())
+    got, _ = blender_render(exported, tmp_path)
     assert_matches_plain_player("blender", got, exported, MIN_PSNR_BLENDER, tmp_path)
 
 
-def test_threejs_gltfloader_loads_the_glb_and_renders_its_plain_texture(exported, require_tool, http_root, request,
-                                                                         tmp_path):
+def test_blender_places_a_utm_scene_at_its_origin(exported_utm, require_tool, tmp_path):
+    """The node's translation is the bundle's float64 origin; Blender's importer turns it Z-up -> its Y-up ->
+    (x, -z, y) as it turns the cameras. Blender keeps object and camera positions in float32 (0.5 apart at a
+    northing of 4.2e6), so its picture is not compared here; three.js composes the model-view matrix in doubles."""
+    require_tool(blender_missing())
+    glb, bundle, _, _, _ = exported_utm[0]
+    doc = json.loads(glb.read_bytes()[20:20 + int.from_bytes(glb.read_bytes()[12:16], "little")])
+    np.testing.assert_allclose(doc["nodes"][0]["translation"], bundle.origin, rtol=1e-12)
+    _, placed = blender_render(exported_utm[0], tmp_path)
+    (where,) = placed.values()
+    x, y, z = bundle.origin
+    np.testing.assert_allclose(where, [x, -z, y], rtol=1e-6)
+
+
+def threejs_render(exported, require_tool, http_root, request, name: str) -> list[np.ndarray]:
+    """three.js's frames (GLTFLoader, headless Chromium) of the exported glb from its cameras."""
     from neuras_distill.playback.projection import projection_matrix, view_matrix
 
     require_tool(None if (THREE / "build" / "three.module.js").is_file() else
@@ -136,7 +195,7 @@ def test_threejs_gltfloader_loads_the_glb_and_renders_its_plain_texture(exported
     browser = request.getfixturevalue("browser")               # after the check: it may skip or fail itself
     glb, bundle, cams, _, _ = exported
     root, base = http_root
-    site = root / "gltf-three"
+    site = root / name
     site.mkdir()
     (site / "three").symlink_to(THREE, target_is_directory=True)
     shutil.copy(ROOT / "scripts" / "gltf_three_render.html", site / "index.html")
@@ -147,7 +206,7 @@ def test_threejs_gltfloader_loads_the_glb_and_renders_its_plain_texture(exported
               .reshape(-1).tolist()} for i in range(len(cams))]
     (site / "cameras.json").write_text(json.dumps({"width": cams.width, "height": cams.height, "views": views,
                                                    "background": [float(c) for c in bundle.background_color]}))
-    browser.get(f"{base}/gltf-three/index.html")
+    browser.get(f"{base}/{name}/index.html")
     deadline = time.monotonic() + 120.0
     while True:
         ready, error = browser.execute_script("return [window.gltfReady === true, window.gltfError || null];")
@@ -160,4 +219,25 @@ def test_threejs_gltfloader_loads_the_glb_and_renders_its_plain_texture(exported
     for i in range(len(cams)):
         url = browser.execute_script(f"return window.renderView({i});")
         got.append(np.array(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB")))
+    return got
+
+
+def test_threejs_gltfloader_loads_the_glb_and_renders_its_plain_texture(exported, require_tool, http_root, request,
+                                                                         tmp_path):
+    got = threejs_render(exported, require_tool, http_root, request, "gltf-three")
     assert_matches_plain_player("three.js", got, exported, MIN_PSNR_THREE, tmp_path)
+
+
+def test_threejs_places_a_utm_scene_at_its_origin(exported_utm, require_tool, http_root, request, tmp_path):
+    """The UTM-like scene (origin (5e5, 4.2e6, 50), the node's translation) seen from 24 units. three.js multiplies
+    the camera's and the node's matrices in doubles, so its picture is the one it draws of the same bundle at the
+    origin from the same cameras moved with it (>= 50 dB; a float32 model-view would be 0.5 off), and it matches
+    BundleRenderer as near the origin, within what texture filtering costs on these sharp colour bands
+    (>= 37 dB: three.js decodes sRGB before filtering and samples mipmaps; 38.1-39.2 dB measured, the same at
+    the origin)."""
+    utm, at_zero = exported_utm
+    got = threejs_render(utm, require_tool, http_root, request, "gltf-three-utm")
+    there = threejs_render(at_zero, require_tool, http_root, request, "gltf-three-zero")
+    for i, (a, b) in enumerate(zip(got, there)):
+        assert psnr(a, b) >= 50.0, f"view {i}: three.js at UTM vs at the origin {psnr(a, b):.2f} dB"
+    assert_matches_plain_player("three.js (UTM)", got, utm, 37.0, tmp_path)

@@ -68,6 +68,22 @@ def test_two_processes_render_what_one_renders():
     assert one.images[0].std() > 0.05           # not a blank frame: the sphere is in view
 
 
+def test_two_processes_render_a_scene_far_from_the_origin_as_one_does():
+    """Far from the origin the renderer marches in a local frame; the workers rebuild it from the world field."""
+    from neuras_distill.stability.extreme import make_extreme
+
+    field = make_extreme("geo-sphere-1e5")
+    cams = field.default_cameras(3, 24, 24)
+    renderer = VolumeRenderer(field, num_steps=64)
+    assert renderer.frame is not None
+    one = render_field_views(renderer, cams)
+    with RenderPool(field, 2, timeout_s=120) as pool:
+        two = pool.render_views(renderer, cams)
+    for a, b in zip(one.images, two.images):
+        assert float(np.abs(a - b).max()) < 1e-5
+    assert one.images[0].std() > 0.05
+
+
 def test_a_worker_that_dies_ends_the_render_with_one_line():
     field = DiesInWorkers()
     cams = field.default_cameras(4, 16, 16)

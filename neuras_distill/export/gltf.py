@@ -6,10 +6,12 @@ The GLB is written by hand (a JSON chunk and one binary chunk: no glTF library);
 
 Layout (one buffer, the GLB's binary chunk; every buffer view starts on a 4-byte boundary)::
 
-    scenes[0] -> nodes[0] -> meshes[0]: one triangle primitive (one per atlas page), no node transform
-        POSITION    float32 (V, 3), world units: the bundle's vertices (relative to ``bundle.origin``) plus the
-                    origin, summed in float64 and rounded once to float32; the world frame's axes as they are
-                    (no Y-up conversion: the bundle's frame is the field's)
+    scenes[0] -> nodes[0] -> meshes[0]: one triangle primitive (one per atlas page); the node's
+        ``translation`` is ``bundle.origin`` (JSON doubles; absent when it is zero), so the mesh sits at its
+        world place while its float32 positions stay small
+        POSITION    float32 (V, 3), world units relative to ``bundle.origin``: the bundle's vertices as stored
+                    (a georeferenced scene keeps float32 precision around its centre); the world frame's axes as
+                    they are (no Y-up conversion: the bundle's frame is the field's)
         TEXCOORD_0  float32 (V, 2), the bundle's uvs unchanged: glTF's v runs down the image, and the texture's
                     first row is v = 0 (the bundle's convention), so no flip is needed
         indices     uint16 (V < 65535) or uint32
@@ -88,8 +90,9 @@ class _Binary:
 
 
 def _glb_mesh(bundle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(positions float32 (V', 3) in world units, uvs float32 (V', 2), faces (F', 3) into them) of the faces an
-    engine should draw: all of a single-layer mesh, the core of a two-layer one; unused vertices dropped."""
+    """(positions float32 (V', 3) relative to ``bundle.origin``, uvs float32 (V', 2), faces (F', 3) into them) of
+    the faces an engine should draw: all of a single-layer mesh, the core of a two-layer one; unused vertices
+    dropped."""
     mesh = bundle.mesh
     faces = np.asarray(mesh.faces, np.int64)
     if mesh.core_faces:                                   # None: one layer; 0: no core, draw what there is
@@ -97,8 +100,7 @@ def _glb_mesh(bundle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if not len(faces):
         raise BadInputError("the bundle's mesh has no faces to export")
     used, remap = np.unique(faces.reshape(-1), return_inverse=True)
-    world = np.asarray(mesh.vertices, np.float64)[used] + bundle.origin[None, :]
-    return world.astype(np.float32), np.asarray(mesh.uvs, np.float32)[used], remap.reshape(-1, 3)
+    return np.asarray(mesh.vertices, np.float32)[used], np.asarray(mesh.uvs, np.float32)[used], remap.reshape(-1, 3)
 
 
 def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> bytes:
@@ -163,7 +165,8 @@ def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_M
         "extensions": {EXTENSION: {"version": EXTENSION_VERSION, "files": file_views}},
         "scene": 0,
         "scenes": [{"name": "neuras bundle", "nodes": [0]}],
-        "nodes": [{"name": "neuras bundle", "mesh": 0}],
+        "nodes": [{"name": "neuras bundle", "mesh": 0,
+                   **({"translation": [float(x) for x in bundle.origin]} if bundle.origin.any() else {})}],
         "meshes": [{"name": "bundle mesh" + (" (core)" if bundle.mesh.core_faces else ""),
                     "primitives": primitives}],
         "materials": materials,

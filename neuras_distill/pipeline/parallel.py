@@ -223,7 +223,7 @@ class RenderPool:
         try:
             self._dist.broadcast_object_list([request], src=0)
             with torch.no_grad():
-                own = _render_share(renderer.field, request, 0, self.nproc)
+                own = _render_share(renderer.world_field, request, 0, self.nproc)
             shares = [None] * self.nproc
             self._dist.gather_object(own, shares, dst=0)
         except RuntimeError as exc:

@@ -53,6 +53,7 @@ from ..device import chunk_for_memory, field_device, synchronize
 from ..errors import require
 from .compositing import alpha_from_sdf, exclusive_cumsum, optical_depth, sdf_weight_centre
 from .far_region import FarRegion, march_interval
+from .local_frame import LocalFrameField, box_centre, far_from_origin
 from .occupancy import OccupancyGrid, default_inv_s
 from .rays import ray_aabb
 
@@ -90,9 +91,14 @@ class VolumeRenderer:
         require(getattr(field, "kind", None) in ("density", "sdf"),
                 f"cannot volume-render a field of kind {getattr(field, 'kind', None)!r}")
         require(int(num_steps) >= 1, f"num_steps must be >= 1, got {num_steps}")
+        self.device = torch.device(device) if device is not None else field_device(field)
+        # a box far from the world origin is marched in a frame around its centre (``local_frame``): float32
+        # sample positions there are as fine as around the origin, and the field gets them back in float64
+        self.frame = LocalFrameField(field, box_centre(field.aabb)) if far_from_origin(field.aabb) else None
+        self.world_field = field                        # as given: what another process rebuilds this renderer on
+        field = self.frame if self.frame is not None else field
         self.field = field
         self.kind = field.kind
-        self.device = torch.device(device) if device is not None else field_device(field)
         self.aabb = torch.as_tensor(field.aabb, dtype=torch.float32).reshape(2, 3).to(self.device)
         self.num_steps = int(num_steps)
         self.diagonal = float((self.aabb[1] - self.aabb[0]).norm().cpu())
@@ -112,6 +118,8 @@ class VolumeRenderer:
             occupancy = provided(occupancy_resolution) if callable(provided) else None
             if occupancy is None:
                 occupancy = OccupancyGrid.from_field(field, occupancy_resolution, step=self.step)
+        if occupancy is not None and self.frame is not None and far_from_origin(occupancy.aabb):
+            occupancy = OccupancyGrid(self.frame.local(occupancy.aabb.cpu()), occupancy.occupied)  # a world grid
         self.occupancy: OccupancyGrid | None = occupancy.to(self.device) if occupancy is not None else None
         self.stats = {"geometry_points": 0, "radiance_points": 0, "rays": 0, "far_points": 0}
         require(int(far_steps) >= 0, f"far_steps must be >= 0, got {far_steps}")
@@ -146,7 +154,8 @@ class VolumeRenderer:
         Returns ``{"rgb": (N, 3), "depth", "surface_depth", "fringe_depth", "opacity": (N,)}`` float32 tensors;
         the surface and fringe depths only with ``crossings`` (zeros otherwise; the teacher asks for them).
         """
-        origins = origins.reshape(-1, 3).float().to(self.device)
+        origins = origins.reshape(-1, 3)
+        origins = (self.frame.local(origins) if self.frame is not None else origins.float()).to(self.device)
         dirs = dirs.reshape(-1, 3).float().to(self.device)
         outs = [self._render_chunk(origins[i:i + self.chunk], dirs[i:i + self.chunk], crossings)
                 for i in range(0, origins.shape[0], self.chunk)]

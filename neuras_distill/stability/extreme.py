@@ -11,7 +11,9 @@ Each is a tiny analytic field (Field protocol) that stresses one numerical regim
 * ``far-sphere``: a unit sphere 1e5 units from the origin (float32 positions quantised to 0.0078: refused);
 * ``far-km-sphere``: a 500 m sphere 1e5 units from the origin (the same quantisation, 1e-5 of its size: fine);
 * ``nan-corner``: a density sphere whose field returns NaN in one corner of the box;
-* ``flipped-sign``: a sphere SDF that is positive inside.
+* ``flipped-sign``: a sphere SDF that is positive inside;
+* the scenes in real-world coordinates of :mod:`.georeferenced` (``geo-sphere``, ``geo-sphere-1e5``,
+  ``geo-sphere-utm``, ``km-plaza``, ``km-plaza-offset``).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import torch
 
 from ..errors import BadInputError
 from ..scenes.analytic import SphereSDF
+from .georeferenced import GEOREFERENCED
 
 
 class _Base:
@@ -122,6 +125,7 @@ EXTREME = {
     "far-km-sphere": lambda: _sphere((1e5, 0.0, 0.0), 500.0, 1.0),
     "nan-corner": lambda: NaNCorner(),
     "flipped-sign": lambda: ScaledSDF(_sphere((0.0, 0.0, 0.0), 0.5, 1000.0), -1.0),
+    **GEOREFERENCED,
 }
 
 

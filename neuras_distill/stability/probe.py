@@ -29,7 +29,9 @@ import numpy as np
 import torch
 
 from ..errors import BadInputError
+from ..playback.projection import shift_cameras
 from ..render.compositing import alpha_from_sdf, optical_depth, weights_from_alpha
+from ..render.local_frame import LocalFrameField, box_centre, far_from_origin, float64_positions
 from ..render.rays import ray_aabb
 from .report import Item, StabilityReport
 
@@ -109,6 +111,10 @@ class _Ctx:
 
     def __init__(self, field, cameras, num_steps: int, grid_resolution: int, samples: int, rays: int,
                  chunk: int):
+        # a box far from the world origin is probed in the frame the run works in (``render.local_frame``)
+        self.world_field = field
+        self.frame = LocalFrameField(field, box_centre(field.aabb)) if far_from_origin(field.aabb) else None
+        field = self.frame if self.frame is not None else field
         self.field, self.kind = field, field.kind
         self.box = _as_np(torch.as_tensor(field.aabb, dtype=torch.float64)).reshape(2, 3).astype(np.float64)
         self.extent = self.box[1] - self.box[0]
@@ -130,7 +136,9 @@ class _Ctx:
         self.finite = np.isfinite(self.values)
         # cameras and probe rays
         side = max(2, int(math.isqrt(max(rays // 8, 4))))
-        self.cams, self.all_cams = _probe_cameras(field, cameras, 8, side)
+        self.cams, self.all_cams = _probe_cameras(self.world_field, cameras, 8, side)
+        if self.frame is not None:
+            self.cams, self.all_cams = (shift_cameras(c, self.frame.origin) for c in (self.cams, self.all_cams))
         o, d = [], []
         for i in range(len(self.cams)):
             oi, di = self.cams.rays(i)
@@ -454,21 +462,48 @@ def _cameras(c: _Ctx, grazing: float | None) -> list[Item]:
 
 
 def _scale(c: _Ctx) -> Item:
+    """float32 positions against the finest length (voxel, teacher step, probe cell). Near the world origin,
+    the farthest coordinate of the box and the cameras decides. A box far from it is worked on in a local
+    frame around its centre (every float32 stage), so only the field's own arithmetic can lose precision:
+    fine when it computes positions in float64 (``local_frame.float64_positions``), else judged at the
+    float32 spacing of its world coordinates."""
     centres = _as_np(c.all_cams.centers).astype(np.float64)
-    far = float(max(np.abs(c.box).max(), np.abs(centres).max() if centres.size else 0.0))
+    world_box = c.box if c.frame is None else c.box + c.frame.origin
+    world_centres = centres if c.frame is None else centres + c.frame.origin
+    far = float(max(np.abs(world_box).max(), np.abs(world_centres).max() if centres.size else 0.0))
     ulp = float(np.spacing(np.float32(far)))
     finest = min(c.voxel, c.step, 0.25 * float(c.cell.min()))
     ratio = ulp / finest
-    values = {"box_size": c.extent.max().item(), "box_centre_distance": float(np.linalg.norm(c.box.mean(0))),
-              "max_abs_coordinate": far, "float32_ulp": ulp, "finest_length": finest, "ulp_over_finest": ratio}
+    distance = float(np.linalg.norm(world_box.mean(0)))
+    values = {"box_size": c.extent.max().item(), "box_centre_distance": distance, "max_abs_coordinate": far,
+              "float32_ulp": ulp, "finest_length": finest, "ulp_over_finest": ratio,
+              "local_frame": c.frame is not None}
+    if c.frame is not None:
+        precise = float64_positions(c.world_field)
+        values["field_float64_positions"] = precise
+        where = (f"the box lies {distance:.3g} units from the origin: every float32 stage works relative to its "
+                 "centre")
+        if precise:
+            return Item("scale.float32", "scale", values, "fine",
+                        f"{where}, and the field computes positions in float64")
+        if ratio <= ULP_FINE:
+            return Item("scale.float32", "scale", values, "fine",
+                        f"{where}; the field rounds positions to float32, {ratio:.2g} of the finest step")
+        if ratio <= ULP_REFUSE:
+            return Item("scale.float32", "scale", values, "adapted",
+                        f"{where}, but the field rounds positions to float32 there: {ratio:.2g} of a voxel/step; "
+                        "compute positions in float64 in the field to remove it", {})
+        return Item("scale.float32", "scale", values, "refused",
+                    f"{where}, but the field rounds positions to float32 there: {ulp:.2g} apart, {ratio:.2g} of its "
+                    f"finest step {finest:.3g}; compute positions in float64 in the field (subtract a float64 centre "
+                    "before casting)")
     if ratio <= ULP_FINE:
         return Item("scale.float32", "scale", values, "fine",
                     f"float32 resolves positions to {ratio:.2g} of the finest step")
     if ratio <= ULP_REFUSE:
         return Item("scale.float32", "scale", values, "adapted",
-                    f"far from the origin: float32 positions are quantised to {ratio:.2g} of a voxel/step; "
-                    "playback and G-buffers are recentred (pipeline origin shift); recentre the field to remove it",
-                    {})
+                    f"float32 positions are quantised to {ratio:.2g} of a voxel/step; every float32 stage after "
+                    "the teacher works relative to the box's centre", {})
     return Item("scale.float32", "scale", values, "refused",
                 f"the box lies {far:.3g} units from the origin but its finest step is {finest:.3g}: float32 "
                 f"positions are quantised to {ratio:.2g} of a step; recentre the field (subtract a float64 "

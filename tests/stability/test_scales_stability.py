@@ -53,14 +53,16 @@ def test_scale_free_teacher():
 
 
 @S(case="check: float32 scale probe", family="scale",
-   reference="km-sphere fine; far-sphere (1e5 from origin) refused with the recentre message", tolerance="exact prefix")
+   reference="km-sphere fine; far-sphere (1e5 from origin, its field rounds positions to float32) refused with "
+             "the message naming the fix", tolerance="exact prefix")
 def test_scale_probe():
     assert probe_field(make_extreme("km-sphere"), samples=24, rays=32).item("scale.float32").verdict == "fine"
     item = probe_field(make_extreme("far-sphere"), samples=24, rays=32).item("scale.float32")
     assert item.verdict == "refused"
-    assert item.explanation.startswith("the box lies 1e+05 units from the origin but its finest step is ")
-    assert item.explanation.endswith("recentre the field (subtract a float64 centre from positions and cameras) "
-                                     "before distilling")
+    assert item.explanation.startswith("the box lies 1e+05 units from the origin: every float32 stage works "
+                                       "relative to its centre, but the field rounds positions to float32 there")
+    assert item.explanation.endswith("compute positions in float64 in the field (subtract a float64 centre before "
+                                     "casting)")
 
 
 def _geometry_chain(centre, radius):

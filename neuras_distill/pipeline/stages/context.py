@@ -18,6 +18,8 @@ from ...config import DistillConfig
 from ...device import peak_memory_mb
 from ...device_field import on_device
 from ...fields.base import Field
+from ...playback.projection import shift_cameras
+from ...render.local_frame import LocalFrameField, box_centre
 from ..cache import StageCache, field_fingerprint
 from ..choices import Background, Decisions
 
@@ -97,6 +99,9 @@ class RunContext:
             host field: the same keys on every device) is taken.
         pool: a :class:`~neuras_distill.pipeline.parallel.RenderPool` sharing the teacher's renders and training
             (``--nproc N``), or None (one process).
+        origin: (3,) float64 world position of the run's local frame: the foreground box's centre. Every
+            float32 stage (the mesh from marching cubes on, the G-buffers, training, the bundle, the players)
+            works relative to it; ``local_field`` and :meth:`local` give the field and cameras in that frame.
     """
 
     field: Field
@@ -116,6 +121,8 @@ class RunContext:
             self.clock = StageClock(self.root, self.log, self.cfg.train.seed)
         self.fingerprint = field_fingerprint(self.field)
         self.field = on_device(self.field, self.device, self.cfg.teacher.precision)
+        self.origin = box_centre(self.field.aabb)
+        self.local_field = LocalFrameField(self.field, self.origin)
         self._background: Background | None = None
         self._volume_renderer = None
 
@@ -131,6 +138,10 @@ class RunContext:
                                                    far_steps=self.cfg.teacher.far_steps,
                                                    occupancy_resolution=self.cfg.teacher.occupancy_resolution)
         return self._volume_renderer
+
+    def local(self, cameras):
+        """``cameras`` (world) in the run's local frame (centres minus ``origin``, in float64)."""
+        return shift_cameras(cameras, self.origin)
 
     @property
     def background(self) -> Background:

@@ -1,5 +1,5 @@
-"""Stage 4: rasterize the training views' G-buffers (OpenGL) relative to the scene's origin, and decide what
-the bundle shows where the mesh is not (skyboxes or a clear colour)."""
+"""Stage 4: rasterize the training views' G-buffers (OpenGL) in the run's local frame (``RunContext.origin``: the
+mesh is already in it), and decide what the bundle shows where the mesh is not (skyboxes or a clear colour)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ import torch
 
 from ...geometry.mesh import MeshData
 from ...neural.model import view_inputs
-from ...playback.projection import shift_cameras
 from ...playback.rasterize import rasterize_gbuffer
 from .. import choices
 from ..cache import digest
@@ -24,13 +23,6 @@ from ..stage_results import (
 from .context import RunContext
 
 
-def scene_origin(field) -> np.ndarray:
-    """(3,) float64: the foreground box's centre. GL and training work relative to it, so a scene far from its
-    world origin keeps float32 precision."""
-    aabb64 = np.asarray(torch.as_tensor(field.aabb).double().reshape(2, 3).cpu().numpy())
-    return 0.5 * (aabb64[0] + aabb64[1])
-
-
 def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, geometry: GeometryResult,
                   inputs: ShaderInputs) -> tuple[TrainingViews, Backdrop]:
     """The G-buffers of the training views (stored as ``gbuffer``), the shader's view inputs, and the backdrop."""
@@ -38,14 +30,13 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
 
     cfg, train, mesh = ctx.cfg, views.train, geometry.mesh
     ctx.clock.start("gbuffer", f"rasterizing {mesh.num_faces} faces for {len(train)} views (OpenGL)")
-    origin = scene_origin(ctx.field)
     smoothing = choices.shading_normals(mesh, inputs.use_facing or inputs.reflect, cfg.texture.normal_smoothing,
                                         ctx.decisions, roughness=inputs.normal_roughness_deg)
-    local_mesh = MeshData((mesh.vertices.astype(np.float64) - origin).astype(np.float32), mesh.faces, mesh.uvs,
-                          mesh.stats, core_faces=mesh.core_faces, normal_smoothing=smoothing)
+    local_mesh = MeshData(mesh.vertices, mesh.faces, mesh.uvs, mesh.stats, core_faces=mesh.core_faces,
+                          normal_smoothing=smoothing)
     key = digest("gbuffer", ctx.keys["geometry"], train.to_json(), cfg.geometry.cull_back_faces,
                  *(("normal smoothing", smoothing) if smoothing else ()))
-    local_cameras = shift_cameras(train, origin)
+    local_cameras = ctx.local(train)
     cull = cfg.geometry.cull_back_faces
     gbuffer = ctx.cached_files("gbuffer", key,
                                lambda folder: rasterize_gbuffer(local_mesh, local_cameras, cull_back_faces=cull,
@@ -70,7 +61,7 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
     else:
         clear = ctx.background.colour
     ctx.clock.done(key=key, coverage=float(gbuffer.coverage.mean()), skyboxes=use_skybox, skybox_reason=reason)
-    return TrainingViews(origin, local_mesh, gbuffer, dirs), Backdrop(skybox, sky_origins, reason, clear, sky_pixels)
+    return TrainingViews(ctx.origin, local_mesh, gbuffer, dirs), Backdrop(skybox, sky_origins, reason, clear, sky_pixels)
 
 
 def shader_view_inputs(ctx: RunContext, train, gbuffer, inputs: ShaderInputs, core_faces: int | None) -> np.ndarray:

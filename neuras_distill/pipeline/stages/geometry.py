@@ -17,7 +17,8 @@ from .context import RunContext, settings
 
 def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
                    plan: TrainingPlan) -> tuple[GeometryResult, ShaderInputs, TrainingPlan]:
-    """The unwrapped mesh in world coordinates (stored as ``surface``, then ``geometry``) with how its atlas
+    """The unwrapped mesh in the run's local frame (``RunContext.origin``; stored as ``surface``, then ``geometry``)
+    with how its atlas
     side was chosen, the shader inputs it decides and the plan with its steps fixed. Decisions recorded: the
     fringe shell, the atlas's texels, culled faces, shader inputs, training steps."""
     g = ctx.cfg.geometry
@@ -28,7 +29,7 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     auto_side = ctx.cfg.texture.resolution == 0
     side, density = choose_atlas_side(ctx, surface, views, plan) if auto_side else (ctx.cfg.texture.resolution, {})
     weighted = ctx.cfg.texture.view_weighted_texels and surface.layout is None
-    weights = rules.view_texel_weights(surface.mesh, views.train) if weighted else None
+    weights = rules.view_texel_weights(surface.mesh, ctx.local(views.train)) if weighted else None
     page_size = ctx.cfg.texture.page_size
     paged = page_size < max(side, ctx.cfg.texture.max_resolution if auto_side else side)
     key = digest("geometry", ctx.keys["surface"], side, rules.MIN_TEXEL_YIELD if auto_side else None,
@@ -86,12 +87,13 @@ def extract(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, enclose
     trial_side = min(1024, ctx.cfg.texture.max_resolution)
 
     def compute() -> Surface:
-        return extract_surface(ctx.field, views.train, g, trial_resolution=trial_side,
+        return extract_surface(ctx.local_field, ctx.local(views.train), g, trial_resolution=trial_side,
                                density_level=getattr(ctx.field, "surface_level", None),
                                field_opacity=teacher.opacities if enclose else None,
                                field_depth=(teacher.surface_depths, teacher.fringe_depths, teacher.opacities))
 
-    key = digest("surface", ctx.keys["teacher"], settings(g, ("cull_back_faces",)), trial_side, enclose)
+    key = digest("surface", ctx.keys["teacher"], settings(g, ("cull_back_faces",)), trial_side, enclose,
+                 "local frame", ctx.origin.tolist())
     return ctx.cached("surface", key, compute, Surface.save, Surface.load)
 
 
@@ -104,10 +106,11 @@ def choose_atlas_side(ctx: RunContext, surface: Surface, views: CameraSplit, pla
     the fringe: the nerfstudio fixture's core covered 8,378 training pixels and got a 128² atlas."""
     layers = surface.trial.layers()
     hi = ctx.cfg.texture.max_resolution
-    side, info = rules.texel_density_resolution(layers[0], views.train, hi=hi)
+    train = ctx.local(views.train)
+    side, info = rules.texel_density_resolution(layers[0], train, hi=hi)
     if len(layers) > 1:
         shell_side, shell = rules.texel_density_resolution(
-            layers[1], views.train, hi=hi, pixels_per_texel=rules.PIXELS_PER_TEXEL / SHELL_TEXEL_SCALE)
+            layers[1], train, hi=hi, pixels_per_texel=rules.PIXELS_PER_TEXEL / SHELL_TEXEL_SCALE)
         info = dict(info, shell_pixels=shell["pixels"], shell_uv_area=shell["uv_area"], shell_exact=shell["exact"])
         if shell["exact"] > info["exact"]:
             side, info = shell_side, dict(info, exact=shell["exact"], from_shell=1)
@@ -126,8 +129,8 @@ def choose_shader_inputs(ctx: RunContext, mesh, enclose: bool) -> ShaderInputs:
     """What the shader takes besides the features, decided on the mesh (``pipeline.choices``)."""
     cfg, record = ctx.cfg, ctx.decisions
     use_facing = choices.facing_input(mesh, enclose, record)
-    use_viewdir, spread = choices.view_dependence(ctx.field, mesh, cfg, record, fringe_shell=use_facing)
-    core_viewdir = choices.core_view_dependence(ctx.field, mesh, cfg, use_viewdir, record)
+    use_viewdir, spread = choices.view_dependence(ctx.local_field, mesh, cfg, record, fringe_shell=use_facing)
+    core_viewdir = choices.core_view_dependence(ctx.local_field, mesh, cfg, use_viewdir, record)
     reflect, roughness = choices.reflected_view_input(mesh, cfg, use_viewdir, use_facing, record)
     return ShaderInputs(use_viewdir, spread, use_facing, core_viewdir, reflect=reflect,
                         normal_roughness_deg=roughness)
