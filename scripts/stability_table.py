@@ -63,7 +63,9 @@ def main() -> int:
         env = dict(os.environ, STABILITY_RECORD=str(record), OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "1"),
                    MKL_NUM_THREADS=os.environ.get("MKL_NUM_THREADS", "1"))
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/stability"],
+        # one process: the records are collected in it (pyproject's addopts would spread the cases over workers)
+        proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider",
+                               "tests/stability"],
                               cwd=ROOT, env=env)
         seconds = time.perf_counter() - t0
         records = json.loads(record.read_text()) if record.exists() else []
