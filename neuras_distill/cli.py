@@ -30,15 +30,26 @@ def _distill_command(args) -> int:
     from pathlib import Path
 
     from .device import resolve_device
+    from .errors import BadInputError
     from .pipeline.parallel import check_nproc
     from .pipeline.run import distill
     from .pipeline.rundir import check_output_folder
+    from .pipeline.torchrun import agree, join_group, launch_from_env
 
     out = Path(args.out) if args.out else _default_out(args)
     check_output_folder(out.resolve())  # fail before any work
     resolve_device(args.device)
     check_nproc(args.nproc)              # before any work: a bad --nproc is one line, nothing written
-    field, cameras, cfg = run_inputs(args)
+    launch = launch_from_env()
+    if launch is None:
+        field, cameras, cfg = run_inputs(args)
+    else:                                # every rank hears of a rank that cannot load its inputs
+        join_group(launch, args.device)
+        try:
+            field, cameras, cfg = run_inputs(args)
+        except BadInputError as exc:
+            agree(launch, {}, error=str(exc))
+            raise
     distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
             fresh=args.fresh, keep_work=args.keep_work, source=_source(args), device=args.device,
             nproc=args.nproc)

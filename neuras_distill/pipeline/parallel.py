@@ -6,8 +6,9 @@ pickled by ``torch.multiprocessing``, whose tensors travel through shared memory
 broadcast to every rank (the cameras, the renderer's settings and its occupancy grid, so no worker rebuilds it);
 rank ``r`` renders views ``r, r + N, r + 2N, ...`` and the renders are gathered on rank 0 in view order. Every
 rank uses ``cpu_count // N`` torch threads while it renders (2 processes of 1 thread instead of 1 of 2 on this
-machine), rank 0 restores its own count afterwards. The group is gloo over TCP on 127.0.0.1, so the same
-protocol would run across machines under ``torchrun`` once the field can be rebuilt there.
+machine), rank 0 restores its own count afterwards. The group is gloo over TCP on 127.0.0.1. Under torchrun or srun
+(``pipeline/torchrun.py``) the same protocol runs across machines: every rank rebuilds the field itself, the group
+comes from the launcher's environment (:meth:`RenderPool.joined`), and a fit's arrays travel through the group.
 
 What is split: the teacher's renders of the training views (``stages.teacher``) and training
 (:meth:`RenderPool.fit`: data-parallel, every rank runs :func:`~neuras_distill.neural.train.fit` on its share of
@@ -91,7 +92,9 @@ def _render_share(field, request: RenderRequest, rank: int, world: int) -> list[
 
 @dataclass
 class FitRequest:
-    """Tells the workers to take a :class:`FitPayload` from their queue and train with rank 0."""
+    """Tells the workers to train with rank 0: on the :class:`FitPayload` it carries (ranks of a torchrun launch,
+    on other machines), or on the one waiting in their queue (spawned workers: shared memory)."""
+    payload: object = None
 
 
 @dataclass
@@ -104,6 +107,12 @@ class FitPayload:
     arrays: dict
     kwargs: dict
     stored: dict | None
+
+
+@dataclass
+class Abort:
+    """Tells the ranks of a torchrun / srun launch that rank 0 stopped, and why (one line)."""
+    message: str
 
 
 class _StoredState:
@@ -121,20 +130,50 @@ class _StoredState:
         return False
 
 
-def _fit_share(payload: FitPayload, rank: int, world: int) -> None:
-    """Rank ``rank``'s part of a data-parallel fit (its model copy is dropped afterwards)."""
+def _fit_share(payload: FitPayload, rank: int, world: int) -> float:
+    """Rank ``rank``'s part of a data-parallel fit (its model copy is dropped afterwards); its seconds."""
+    import time
+
     from ..neural.data_parallel import GradientExchange
     from ..neural.train import fit
 
+    t0 = time.perf_counter()
     a = payload.arrays
     fit(payload.model, a["uv"], a["coverage"], a["dirs"], a["targets"], skybox=payload.skybox,
         origins=a.get("origins"), sky_pixels=a.get("sky_pixels"), progress=False,
         checkpoint=_StoredState(payload.stored) if payload.stored is not None else None,
         exchange=GradientExchange(rank, world), **payload.kwargs)
+    return time.perf_counter() - t0
+
+
+def serve_requests(field, rank: int, world: int, take_payload) -> None:
+    """Ranks 1 .. world-1 of a formed group: serve rank 0's render and fit requests until it sends None. A fit's
+    payload comes with the request or from ``take_payload()``; after each request the rank's seconds go back to
+    rank 0 with its share."""
+    import time
+
+    import torch.distributed as dist
+
+    while True:
+        box = [None]
+        dist.broadcast_object_list(box, src=0)
+        request = box[0]
+        if request is None:
+            break
+        if isinstance(request, Abort):
+            raise BadInputError(f"rank {rank}: rank 0 stopped: {request.message}")
+        if isinstance(request, FitRequest):
+            seconds = _fit_share(request.payload if request.payload is not None else take_payload(), rank, world)
+            dist.gather_object(seconds, None, dst=0)
+            continue
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            share = _render_share(field, request, rank, world)
+        dist.gather_object((share, time.perf_counter() - t0), None, dst=0)
 
 
 def _worker(index: int, field, world: int, port: int, timeout_s: float, queues) -> None:
-    """Ranks 1 .. world-1: join the group, then serve render and fit requests until told to stop."""
+    """Ranks 1 .. world-1 of ``--nproc``: join the group, then serve render and fit requests until told to stop."""
     import torch.distributed as dist
 
     rank = index + 1
@@ -143,27 +182,19 @@ def _worker(index: int, field, world: int, port: int, timeout_s: float, queues) 
     store.set(f"ready{rank}", "1")
     dist.init_process_group("gloo", store=store, rank=rank, world_size=world, timeout=timedelta(seconds=timeout_s))
     try:
-        while True:
-            box = [None]
-            dist.broadcast_object_list(box, src=0)
-            request = box[0]
-            if request is None:
-                break
-            if isinstance(request, FitRequest):
-                _fit_share(queues[index].get(), rank, world)
-                continue
-            with torch.no_grad():
-                share = _render_share(field, request, rank, world)
-            dist.gather_object(share, None, dst=0)
+        serve_requests(field, rank, world, queues[index].get)
     finally:
         dist.destroy_process_group()
 
 
 class RenderPool:
-    """``nproc`` processes (this one and ``nproc - 1`` spawned workers) that render a field's views together.
+    """``nproc`` processes that render a field's views and train together: this one and ``nproc - 1`` spawned
+    workers (``--nproc``), or rank 0 of a torchrun / srun launch whose other ranks run
+    :func:`~neuras_distill.pipeline.torchrun.serve` on their own machines (:meth:`joined`).
 
     Use as a context manager; :meth:`render_views` has the contract of
-    :func:`neuras_distill.pipeline.evaluate.render_field_views` (renders in view order, per-view seconds).
+    :func:`neuras_distill.pipeline.evaluate.render_field_views` (renders in view order, per-view seconds);
+    :meth:`ranks` is what the report says about the processes.
     """
 
     def __init__(self, field, nproc: int, timeout_s: float = DEFAULT_TIMEOUT_S):
@@ -173,6 +204,9 @@ class RenderPool:
         self.nproc = check_nproc(nproc)
         require(self.nproc >= 2, "a RenderPool needs at least 2 processes")
         self.timeout_s = float(timeout_s)
+        self.launcher, self.places = "--nproc", [{"host": socket.gethostname(), "node": 0}] * self.nproc
+        self.threads = threads_per_process(self.nproc)
+        self._seconds = {"teacher": [0.0] * self.nproc, "training": [0.0] * self.nproc}
         port = _free_port()
         self._queues = [mp.get_context("spawn").SimpleQueue() for _ in range(self.nproc - 1)]
         self._store = dist.TCPStore("127.0.0.1", port, self.nproc, is_master=True,
@@ -185,6 +219,33 @@ class RenderPool:
                                 f"({type(exc).__name__}: {exc}); run with --nproc 1") from None
         self._join_group(dist, port)
         self._dist = dist
+
+    @classmethod
+    def joined(cls, launch, places: list[dict], timeout_s: float = DEFAULT_TIMEOUT_S) -> "RenderPool":
+        """Rank 0's pool in the process group of a torchrun / srun ``launch`` (``torchrun.Launch``, the group
+        already formed; ``places``: each rank's ``{"host", "node"}``, ``torchrun.agree``). Fit payloads travel
+        through the group (the ranks may be on other machines); every process keeps the torch threads it was
+        launched with."""
+        import torch.distributed as dist
+
+        pool = cls.__new__(cls)
+        pool.nproc, pool.timeout_s, pool.launcher, pool.places = launch.world, float(timeout_s), launch.launcher, places
+        pool.threads = torch.get_num_threads()
+        pool._seconds = {"teacher": [0.0] * launch.world, "training": [0.0] * launch.world}
+        pool._queues, pool._context, pool._store, pool._dist = None, None, None, dist
+        return pool
+
+    def ranks(self) -> dict:
+        """``report.json["ranks"]``: the launcher, how many ranks on how many nodes, each rank's host and its
+        seconds of teacher rendering and of training."""
+        return {"launcher": self.launcher, "ranks": self.nproc, "nodes": self.nodes(),
+                "hosts": [p["host"] for p in self.places],
+                "teacher_seconds": [round(x, 3) for x in self._seconds["teacher"]],
+                "training_seconds": [round(x, 3) for x in self._seconds["training"]]}
+
+    def nodes(self) -> int:
+        """How many nodes (machines, or torchrun's node groups) the ranks run on."""
+        return len({str(p["node"]) for p in self.places})
 
     def _join_group(self, dist, port: int) -> None:
         """Wait until every worker has reached the store (each sets ``ready<rank>``), watching them meanwhile: one
@@ -218,23 +279,23 @@ class RenderPool:
 
         request = RenderRequest(cameras.to_json(), renderer_settings(renderer), depths)
         old = torch.get_num_threads()
-        torch.set_num_threads(threads_per_process(self.nproc))
+        torch.set_num_threads(self.threads)
         t0 = time.perf_counter()
         try:
             self._dist.broadcast_object_list([request], src=0)
             with torch.no_grad():
                 own = _render_share(renderer.world_field, request, 0, self.nproc)
             shares = [None] * self.nproc
-            self._dist.gather_object(own, shares, dst=0)
+            self._dist.gather_object((own, time.perf_counter() - t0), shares, dst=0)
         except RuntimeError as exc:
             self._kill()
-            raise BadInputError(f"--nproc {self.nproc}: a worker process failed or did not answer within "
-                                f"{self.timeout_s:.0f} s ({str(exc).splitlines()[0][:160]}); "
-                                f"run with --nproc 1") from None
+            raise BadInputError(self._failure("rendering the teacher's views", exc)) from None
         finally:
             torch.set_num_threads(old)
         wall = time.perf_counter() - t0
-        views = dict(item for share in shares for item in share)
+        for r, (_, seconds) in enumerate(shares):
+            self._seconds["teacher"][r] += seconds
+        views = dict(item for share, _ in shares for item in share)
         require(sorted(views) == list(range(len(cameras))), "--nproc: the workers returned an incomplete set of views")
         renders = FieldRenders([], [], [], [], [])
         for i in range(len(cameras)):
@@ -255,12 +316,13 @@ class RenderPool:
         batch (the arguments are ``fit``'s; the G-buffers and targets stay on the CPU). Returns rank 0's
         ``TrainLog``; ``model`` and ``skybox`` are trained in place as by ``fit``."""
         import copy
+        import time
 
         from ..neural.data_parallel import GradientExchange
         from ..neural.train import fit
 
         kwargs = dict(kwargs)
-        kwargs["num_threads"] = threads_per_process(self.nproc)
+        kwargs["num_threads"] = self.threads
         require(kwargs.get("device") in (None, "cpu") or torch.device(kwargs["device"]).type == "cpu",
                 f"--nproc {self.nproc} trains on CPU processes; on {kwargs.get('device')} use --nproc 1")
         arrays = {"uv": uv, "coverage": coverage, "dirs": dirs, "targets": targets}
@@ -271,32 +333,50 @@ class RenderPool:
         shared = {k: _shared_tensor(v) for k, v in arrays.items()}
         stored = checkpoint.load() if checkpoint is not None else None
         try:
-            for queue in self._queues:      # first the payloads (small: handles to shared memory), then the call
-                queue.put(FitPayload(copy.deepcopy(model), copy.deepcopy(skybox), shared, kwargs, stored))
-            self._dist.broadcast_object_list([FitRequest()], src=0)
-            return fit(model, uv, coverage, dirs, targets, skybox=skybox, origins=origins, sky_pixels=sky_pixels,
-                       checkpoint=checkpoint, progress=progress, exchange=GradientExchange(0, self.nproc),
-                       **kwargs)
+            if self._queues is None:        # other machines: the payload travels with the request
+                payload = FitPayload(copy.deepcopy(model), copy.deepcopy(skybox), shared, kwargs, stored)
+                self._dist.broadcast_object_list([FitRequest(payload)], src=0)
+            else:
+                for queue in self._queues:  # first the payloads (small: handles to shared memory), then the call
+                    queue.put(FitPayload(copy.deepcopy(model), copy.deepcopy(skybox), shared, kwargs, stored))
+                self._dist.broadcast_object_list([FitRequest()], src=0)
+            t0 = time.perf_counter()
+            log = fit(model, uv, coverage, dirs, targets, skybox=skybox, origins=origins, sky_pixels=sky_pixels,
+                      checkpoint=checkpoint, progress=progress, exchange=GradientExchange(0, self.nproc), **kwargs)
+            seconds = [None] * self.nproc
+            self._dist.gather_object(time.perf_counter() - t0, seconds, dst=0)
         except RuntimeError as exc:
             self._kill()
-            raise BadInputError(f"--nproc {self.nproc}: a worker process failed or did not answer within "
-                                f"{self.timeout_s:.0f} s while training ({str(exc).splitlines()[0][:160]}); "
-                                f"run with --nproc 1") from None
+            raise BadInputError(self._failure("training", exc)) from None
+        for r, s in enumerate(seconds):
+            self._seconds["training"][r] += float(s)
+        return log
+
+    def _failure(self, doing: str, exc: Exception) -> str:
+        """The one line that ends a run whose other ranks failed or stopped answering while ``doing``."""
+        why = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
+        if self._queues is None:
+            return (f"rank 0: another rank (of {self.nproc} on {self.nodes()} nodes) failed or did not "
+                    f"answer within {self.timeout_s:.0f} s while {doing} ({why}); relaunch the same command on "
+                    "every node: it resumes from the finished stages")
+        return (f"--nproc {self.nproc}: a worker process failed or did not answer within {self.timeout_s:.0f} s "
+                f"while {doing} ({why}); run with --nproc 1")
 
     def close(self) -> None:
-        """Tell the workers to stop, leave the group and wait for them."""
+        """Tell the workers to stop, leave the group and wait for them (spawned ones)."""
         if getattr(self, "_dist", None) is None:
             return
         try:
             self._dist.broadcast_object_list([None], src=0)
             self._dist.destroy_process_group()
-            self._context.join(timeout=60)
+            if self._context is not None:
+                self._context.join(timeout=60)
         except Exception:
             self._kill()
         self._dist = None
 
     def _kill(self) -> None:
-        for p in getattr(self._context, "processes", []):
+        for p in getattr(getattr(self, "_context", None), "processes", []):
             if p.is_alive():
                 p.kill()
         import contextlib
@@ -311,7 +391,16 @@ class RenderPool:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, kind, exc, tb):
+        if exc is not None and self._queues is None and getattr(self, "_dist", None) is not None:
+            # ranks on other machines: tell them why rank 0 stopped, so each ends with the same line
+            import contextlib
+
+            with contextlib.suppress(Exception):
+                self._dist.broadcast_object_list([Abort(str(exc).splitlines()[0] if str(exc) else kind.__name__)],
+                                                 src=0)
+                self._dist.destroy_process_group()
+            self._dist = None
         self.close()
 
 

@@ -18,6 +18,8 @@ float64), so a scene kilometres from its world origin keeps float32 precision; t
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -37,6 +39,7 @@ from .report_json import build_report
 from .run_outputs import write_run_outputs
 from .rundir import RunFolder
 from .stages.context import RunContext
+from .torchrun import launch_from_env
 
 if TYPE_CHECKING:
     from ..fields.base import Field
@@ -80,9 +83,12 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
             (the first GPU when torch sees one, else the CPU), ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or a
             :class:`torch.device`. A field's tensors are moved there in place. The bundle is played by OpenGL.
         nproc: processes that share the teacher's volume rendering (this one and ``nproc - 1`` spawned
-            workers, ``neuras_distill.pipeline.parallel``; CPU only); 1: none are spawned.
+            workers, ``neuras_distill.pipeline.parallel``; CPU only); 1: none are spawned. Under torchrun or
+            srun (``pipeline/torchrun.py``) every rank calls ``distill`` with the same field, cameras and
+            configuration and the ranks share the work across machines instead; ``nproc`` must then be 1.
     Returns:
-        DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``.
+        DistillResult with ``report`` (the contract keys), ``bundle`` and ``out``; None on the ranks other than
+        0 of a torchrun / srun launch (rank 0 writes the run folder).
     Raises:
         BadInputError: for anything the user can fix (message says what and how).
     """
@@ -94,6 +100,12 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
     nproc = check_nproc(nproc)
     require(nproc == 1 or device.type == "cpu",
             f"--nproc {nproc} shares volume rendering between CPU processes; on {device} use --nproc 1")
+    launch = launch_from_env()
+    require(launch is None or nproc == 1,
+            f"--nproc {nproc} spawns processes on this machine, but {launch and launch.launcher} already launched "
+            f"{launch and launch.world}: leave --nproc out and launch one process per share")
+    if launch is not None and launch.rank != 0:
+        log, progress = (lambda msg: None), False        # rank 0 speaks for the run
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     if config is None:
         cfg = DistillConfig().validate()
@@ -110,7 +122,33 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
     torch.manual_seed(cfg.train.seed)
     np.random.seed(cfg.train.seed)
 
+    if launch is not None:
+        return _run_launched(launch, out, field, cameras, cfg, log, progress, stability, source, device,
+                             camera_origin, fresh, keep_work, reuse_from)
     with _render_pool(field, nproc) as pool:
+        return _run_into(out, field, cameras, cfg, log, progress, stability, source, device, camera_origin,
+                         fresh, keep_work, reuse_from, pool)
+
+
+def _run_launched(launch, out, field, cameras, cfg, log, progress, stability, source, device, camera_origin,
+                  fresh, keep_work, reuse_from) -> DistillResult | None:
+    """One rank of a torchrun / srun launch: every rank checks that the others got the same field, cameras,
+    configuration and version; rank 0 runs with a pool over the group, the others serve it."""
+    from .. import __version__
+    from .cache import digest, field_fingerprint
+    from .parallel import RenderPool
+    from .torchrun import agree, join_group, serve
+
+    join_group(launch, str(device))
+    places = agree(launch, {"field": field_fingerprint(field), "cameras": digest(cameras.to_json()),
+                           "configuration": digest(json.dumps(dataclasses.asdict(cfg), sort_keys=True, default=str)),
+                           "version": __version__})
+    if launch.rank != 0:
+        serve(field, launch)
+        return None
+    pool = RenderPool.joined(launch, places)
+    log(f"{launch.launcher}: {launch.world} ranks on {pool.nodes()} nodes share the teacher and training")
+    with pool:
         return _run_into(out, field, cameras, cfg, log, progress, stability, source, device, camera_origin,
                          fresh, keep_work, reuse_from, pool)
 
@@ -228,6 +266,8 @@ def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, 
         geometry, inputs, plan = stages.geometry_stage(ctx, views, teacher_views, plan)
         training, backdrop = stages.gbuffer_stage(ctx, views, teacher_views, geometry, inputs)
         distilled = stages.distill_stage(ctx, teacher_views, plan, training, inputs, backdrop)
+        if pool is not None:        # the last stage the other processes share: they leave while this one goes on
+            pool.close()
         bundle = stages.bake_stage(ctx, views, teacher_views, training, distilled, backdrop)
         evaluation = stages.evaluation_stage(ctx, views, teacher, training, distilled, backdrop, bundle)
     except OUT_OF_MEMORY as exc:                    # a GPU that ran out of memory mid-run: one line, exit 2
@@ -237,6 +277,8 @@ def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, 
                        stability=stability, source=source, gl_info=gl_info(), device=device)
     rep["views"]["cameras"] = camera_origin
     rep["processes"] = pool.nproc if pool is not None else 1
+    if pool is not None:
+        rep["ranks"] = pool.ranks()
     rep["scene_aabb"] = [[float(v) for v in row] for row in torch.as_tensor(field.aabb).double().reshape(2, 3)]
     rep.update(peak_memory_mb(device))
     rep["resumed"] = {"stages": list(cache.reused) if cache is not None else [],
