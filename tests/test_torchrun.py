@@ -43,7 +43,7 @@ def _port() -> int:
 
 
 def _node(args: list[str], rendezvous: list[str], log: Path) -> subprocess.Popen:
-    """One torchrun "node" of two (its own session, one torch thread), output in ``log``."""
+    """One torchrun "node" of two (a process group of its own, one torch thread), output in ``log``."""
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     return subprocess.Popen([str(TORCHRUN), "--nnodes", "2", "--nproc-per-node", "1", *rendezvous,
                              "-m", "neuras_distill.cli", *args], stdout=log.open("w"), stderr=subprocess.STDOUT,
@@ -69,7 +69,7 @@ def _wait(procs, timeout: float = 300.0) -> list[int]:
 
 def _kill_node(proc: subprocess.Popen) -> None:
     """SIGKILL a torchrun "node": its agent and every process under it (the agent starts its ranks in their own
-    sessions, so its process group alone would leave them running)."""
+    process groups, so killing its group alone would leave them running)."""
     children: dict[int, list[int]] = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
