@@ -130,3 +130,33 @@ def test_only_choices_records_decisions():
                 elsewhere.append(f"{path.relative_to(root)}:{node.lineno}")
     assert elsewhere == []
     assert "record.keep(" in home.read_text() and "record.leave_out(" in home.read_text()
+
+
+def test_only_the_plan_module_writes_the_training_plan():
+    """``TrainingPlan`` is frozen (an attribute write raises) and ``pipeline/stages/plan.py`` alone makes or changes
+    one: no other module calls ``TrainingPlan(...)`` or ``replace(plan, ...)`` (its ``load`` reads a stored one)."""
+    import ast
+    import dataclasses
+    from pathlib import Path
+
+    from neuras_distill.pipeline.stage_results import TrainingPlan
+
+    plan = TrainingPlan(time_budget_s=None, samples_per_step=1, steps_per_second=None, configured_steps=10)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        plan.steps = 3
+    root = Path(__file__).resolve().parent.parent
+    home = root / "neuras_distill" / "pipeline" / "stages" / "plan.py"
+    elsewhere = []
+    for path in sorted([*(root / "neuras_distill").rglob("*.py"), *(root / "adapters").rglob("*.py")]):
+        if path == home:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if not isinstance(node, ast.Call):
+                continue
+            name = node.func.id if isinstance(node.func, ast.Name) else getattr(node.func, "attr", "")
+            makes = name == "TrainingPlan"
+            changes = name == "replace" and any(isinstance(a, ast.Name) and "plan" in a.id for a in node.args[:1])
+            if makes or changes:
+                elsewhere.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert elsewhere == []
+    assert "replace(plan," in home.read_text() and "TrainingPlan(" in home.read_text()

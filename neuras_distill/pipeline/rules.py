@@ -287,6 +287,18 @@ def run_budget_left(budget_s: float, elapsed_s: float, eval_seconds: float) -> f
     return float(left)
 
 
+def training_cap_s(time_budget_s, run_budget_s, elapsed_s: float, eval_seconds: float):
+    """Training's time cap in seconds, or None for none: ``time_budget_s`` (``train.time_budget_s``; 0 or None:
+    none), or less when a run budget (``train.run_budget_s``, ``--time-budget``) leaves less after ``elapsed_s``
+    spent and ``eval_seconds`` kept for the evaluation (:func:`run_budget_left`). The plan takes it after the
+    teacher, training again when it starts."""
+    cap = time_budget_s or None
+    if run_budget_s:
+        left = run_budget_left(run_budget_s, elapsed_s, eval_seconds)
+        cap = min(cap or left, left)
+    return cap
+
+
 def evaluation_seconds(teacher_seconds: float, teacher_pixels: int, eval_pixels: int) -> float:
     """The held-out evaluation's volume rendering in seconds, estimated from the teacher's seconds per pixel
     (``eval_pixels`` counts every field pixel the evaluation renders)."""

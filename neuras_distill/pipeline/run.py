@@ -262,8 +262,10 @@ def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, 
     ctx = RunContext(field, cfg, root, cache, log, progress, device=device, pool=pool)
     try:
         views = stages.split_cameras(ctx, cameras)
-        teacher, teacher_views, plan = stages.render_teacher(ctx, views)
-        geometry, inputs, plan = stages.geometry_stage(ctx, views, teacher_views, plan)
+        teacher, teacher_views = stages.render_teacher(ctx, views)
+        plan = stages.plan_limits(ctx, views, teacher_views)              # the training plan: its limits,
+        geometry, inputs = stages.geometry_stage(ctx, views, teacher_views, plan)
+        plan = stages.fix_steps(ctx, plan, stages.used_texels(geometry.mesh))  # its steps (then its clock)
         training, backdrop = stages.gbuffer_stage(ctx, views, teacher_views, geometry, inputs)
         distilled = stages.distill_stage(ctx, teacher_views, plan, training, inputs, backdrop)
         if pool is not None:        # the last stage the other processes share: they leave while this one goes on

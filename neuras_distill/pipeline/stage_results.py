@@ -158,14 +158,15 @@ class TrainedModel:
         return cls(state["model"], state["skybox"], state["touched"], load_json(folder, "train_log.json"))
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrainingPlan:
-    """How long training runs. Known after the teacher: ``time_budget_s`` (training's cap in seconds; None:
-    configured steps run to the end), ``samples_per_step`` (pixels per batch), measured ``steps_per_second``
-    (None with configured steps), ``configured_steps``, ``max_steps`` (what the cap affords) and
-    ``eval_seconds`` (the held-out evaluation's estimate, which a run budget keeps free). Fixed after the geometry
-    (``stages.geometry.fix_steps``): ``steps``, ``needed_steps`` (for the target samples per used texel),
-    ``used_texels`` and the ``reason`` the report gives."""
+    """How long training runs; frozen, written only by ``stages/plan.py``. Known after the teacher
+    (``plan_limits``): ``time_budget_s`` (training's cap in seconds; None: configured steps run to the end),
+    ``samples_per_step`` (pixels per batch), measured ``steps_per_second`` (None with configured steps),
+    ``configured_steps``, ``max_steps`` (what the cap affords) and ``eval_seconds`` (the held-out evaluation's
+    estimate, which a run budget keeps free). Fixed after the geometry (``fix_steps``): ``steps``,
+    ``needed_steps`` (for the target samples per used texel), ``used_texels`` and the ``reason`` the report
+    gives."""
 
     time_budget_s: float | None
     samples_per_step: int

@@ -4,11 +4,10 @@ renders, resuming from the last training checkpoint of a killed run."""
 from __future__ import annotations
 
 from ...geometry.unwrap import atlas_shape
-from ...neural.convergence import PlateauStop
 from ...neural.model import NeuralTextureModel
 from ...neural.train import fit
 from ...neural.train_checkpoint import TrainCheckpoint
-from .. import choices, rules
+from .. import choices
 from ..cache import digest
 from ..stage_results import (
     Backdrop,
@@ -20,27 +19,7 @@ from ..stage_results import (
     TrainingViews,
 )
 from .context import RunContext, settings
-
-
-def training_seconds(ctx: RunContext, plan: TrainingPlan) -> float | None:
-    """Training's time cap: the plan's, or less when the run's budget (``train.run_budget_s``) has less left
-    once the evaluation's estimate is kept free (refused when nothing is left)."""
-    budget = ctx.cfg.train.run_budget_s
-    if not budget:
-        return plan.time_budget_s
-    left = rules.run_budget_left(budget, ctx.clock.elapsed(), plan.eval_seconds or 0.0)
-    return min(plan.time_budget_s or left, left)
-
-
-def plateau_stop(ctx: RunContext, plan: TrainingPlan) -> PlateauStop | None:
-    """The plateau rule of an automatic plan trained in one process (``rules.HOLD_BACK_EVERY`` and the
-    ``PLATEAU_*`` figures); None for configured steps and for ``--nproc`` (the ranks would have to agree)."""
-    if plan.configured_steps or ctx.pool is not None:
-        return None
-    return PlateauStop(hold_back_every=rules.HOLD_BACK_EVERY,
-                       check_every=max(25, (plan.steps or 0) // rules.PLATEAU_CHECKS),
-                       patience=rules.PLATEAU_PATIENCE, min_gain_db=rules.PLATEAU_MIN_GAIN_DB,
-                       min_progress=rules.PLATEAU_MIN_PROGRESS, seed=ctx.cfg.train.seed)
+from .plan import plateau_stop, training_seconds
 
 
 def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, training: TrainingViews,

@@ -1,6 +1,6 @@
 """Stage 3: the mesh. Extract the surface (marching cubes or fused depths, cleanup, decimation, culling, a
-trial unwrap), choose the atlas side from it, unwrap at that side; then the choices the mesh decides (shader
-inputs, training steps)."""
+trial unwrap), choose the atlas side from it, unwrap at that side; then the shader inputs the mesh decides (the
+training steps it decides are the plan's: ``stages/plan.py``)."""
 
 from __future__ import annotations
 
@@ -16,11 +16,10 @@ from .context import RunContext, settings
 
 
 def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
-                   plan: TrainingPlan) -> tuple[GeometryResult, ShaderInputs, TrainingPlan]:
-    """The unwrapped mesh in the run's local frame (``RunContext.origin``; stored as ``surface``, then ``geometry``)
-    with how its atlas
-    side was chosen, the shader inputs it decides and the plan with its steps fixed. Decisions recorded: the
-    fringe shell, the atlas's texels, culled faces, shader inputs, training steps."""
+                   plan: TrainingPlan) -> tuple[GeometryResult, ShaderInputs]:
+    """The unwrapped mesh in the run's local frame (``RunContext.origin``; stored as ``surface``, then
+    ``geometry``) with how its atlas side was chosen (from ``plan``'s samples), and the shader inputs it decides.
+    Decisions recorded: the fringe shell, the atlas's texels, culled faces, shader inputs."""
     g = ctx.cfg.geometry
     ctx.clock.start("geometry", f"marching cubes at {g.grid_resolution}, decimation to {g.face_budget} faces, "
                                 "culling, UV unwrap")
@@ -73,9 +72,8 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     choices.surface_source(mesh.stats, ctx.decisions)
     choices.unseen_faces(int(mesh.stats.get("culled_faces", 0)), ctx.decisions)
     inputs = choose_shader_inputs(ctx, mesh, enclose)
-    plan = fix_steps(ctx, plan, mesh)
     ctx.clock.done(key=key, **{k: v for k, v in mesh.stats.items() if isinstance(v, (int, float, str))})
-    return result, inputs, plan
+    return result, inputs
 
 
 def extract(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, enclose: bool) -> Surface:
@@ -134,15 +132,3 @@ def choose_shader_inputs(ctx: RunContext, mesh, enclose: bool) -> ShaderInputs:
     reflect, roughness = choices.reflected_view_input(mesh, cfg, use_viewdir, use_facing, record)
     return ShaderInputs(use_viewdir, spread, use_facing, core_viewdir, reflect=reflect,
                         normal_roughness_deg=roughness)
-
-
-def fix_steps(ctx: RunContext, plan: TrainingPlan, mesh) -> TrainingPlan:
-    """Fix the plan's ``steps``: configured, or enough for ``rules.TARGET_SAMPLES_PER_TEXEL`` samples per
-    used texel of the atlas within ``max_steps``; the choice is recorded as a decision."""
-    used = used_texels(mesh)
-    steps, needed = rules.training_steps(used, plan.samples_per_step, plan.max_steps)
-    if plan.configured_steps:
-        steps = plan.configured_steps
-    why = choices.training_steps(plan, int(steps), int(needed), used, ctx.decisions)
-    plan.steps, plan.needed_steps, plan.used_texels, plan.reason = int(steps), int(needed), int(used), why
-    return plan

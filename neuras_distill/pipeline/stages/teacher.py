@@ -1,4 +1,4 @@
-"""Stages 1 and 2: split the cameras, volume-render the training views (the teacher), and plan training."""
+"""Stages 1 and 2: split the cameras and volume-render the training views (the teacher)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from ...render.cameras import Cameras
 from ...render.volume import VolumeRenderer
 from .. import choices, evaluate, rules
 from ..cache import digest
-from ..stage_results import CameraSplit, TeacherResult, TrainingPlan
+from ..stage_results import CameraSplit, TeacherResult
 from .context import RunContext, settings
 
 
@@ -73,9 +73,9 @@ def with_extra_views(ctx: RunContext, train: Cameras, cameras: Cameras) -> Camer
     return train.joined(extra_views.extra_views(train, distances, count, c.extra_views_deg, ctx.cfg.train.seed))
 
 
-def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer, TeacherResult, TrainingPlan]:
-    """The field's renders of the training views (stored as ``teacher``) and the training plan (``plan``):
-    (the volume renderer, reused for the held-out views, the renders, the plan)."""
+def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer, TeacherResult]:
+    """The field's renders of the training views (stored as ``teacher``): (the volume renderer, reused for the
+    held-out views, the renders)."""
     cfg, train = ctx.cfg, views.train
     ctx.clock.start("teacher", f"volume-rendering {len(train)} training views at {train.width}x{train.height}, "
                                f"{cfg.teacher.num_steps} steps/ray")
@@ -98,36 +98,4 @@ def render_teacher(ctx: RunContext, views: CameraSplit) -> tuple[VolumeRenderer,
                               lambda folder: TeacherResult.load(folder, mmap=True), render)
     require(bool(np.isfinite(result.images).all()), "the field renders NaN or Inf colours; check its parameters")
     ctx.clock.done(views=len(train), key=key, render_seconds=result.seconds)
-    plan_key = digest("plan", key, views.test.to_json(), settings(cfg.train, ("checkpoint_every_s",)),
-                      settings(cfg.texture), settings(cfg.eval), rules.TRAIN_CAP_S)
-    plan = ctx.cached("plan", plan_key, lambda: plan_training(ctx, result.seconds, views),
-                      TrainingPlan.save, TrainingPlan.load)
-    return teacher, result, plan
-
-
-def plan_training(ctx: RunContext, teacher_seconds: float, views: CameraSplit) -> TrainingPlan:
-    """The training plan's limits, known once the teacher has run: the held-out evaluation's estimated seconds,
-    training's time cap (``train.time_budget_s``; else what ``train.run_budget_s`` leaves after the time spent so
-    far and the evaluation; else ``rules.TRAIN_CAP_S``), the measured steps per second and the most steps
-    the cap affords (configured steps: those). Steps are fixed after the geometry."""
-    cfg, train, test = ctx.cfg, views.train, views.test
-    tr = cfg.train
-    samples_per_step = tr.batch_patches * tr.patch ** 2
-    # held-out views, plus the error-vs-runtime curve on one view (a 2x reference and each step count) and
-    # the lane-shifted views of scenes that define them
-    curve = (2 * cfg.teacher.num_steps + sum(cfg.eval.runtime_steps) + cfg.teacher.num_steps) / cfg.teacher.num_steps
-    shifts = 2 * len(getattr(ctx.field, "lane_shifts", None) or [])
-    eval_pixels = int((len(test) + curve + shifts) * test.width * test.height)
-    eval_seconds = rules.evaluation_seconds(teacher_seconds, len(train) * train.width * train.height, eval_pixels)
-    cap = tr.time_budget_s or None
-    if tr.run_budget_s:
-        left = rules.run_budget_left(tr.run_budget_s, ctx.clock.elapsed(), eval_seconds)
-        cap = min(cap or left, left)
-    if tr.steps:                   # configured steps run to the end unless a time budget is configured too
-        return TrainingPlan(time_budget_s=cap, samples_per_step=samples_per_step, steps_per_second=None,
-                            configured_steps=tr.steps, max_steps=tr.steps, eval_seconds=eval_seconds)
-    cap = cap or rules.TRAIN_CAP_S
-    speed = rules.probe_training_speed(cfg.texture, tr, device=ctx.device)
-    return TrainingPlan(time_budget_s=float(cap), samples_per_step=samples_per_step, steps_per_second=speed,
-                        configured_steps=None, max_steps=max(rules.MIN_TRAIN_STEPS, int(cap * speed)),
-                        eval_seconds=eval_seconds)
+    return teacher, result
