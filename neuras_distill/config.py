@@ -36,7 +36,7 @@ def _require_choice(value, choices, name: str) -> None:
     require(value in allowed, f"{name} must be {', '.join(allowed[:-1])} or {allowed[-1]}, got {value!r}")
 
 
-@dataclass
+@dataclass(frozen=True)
 class CameraConfig:
     """Cameras generated for fields that bring none, the held-out split, and extra training views."""
 
@@ -58,8 +58,17 @@ class CameraConfig:
     extra_views_deg: float = 10.0
     """Each extra view is a training camera turned about its look-at point by up to this many degrees."""
 
+    def validate(self) -> "CameraConfig":
+        require(self.num_views >= 2, "need at least 2 views (some train, some held out)")
+        _require_choice(self.extra_views, Mode, "cameras.extra_views")
+        require(0.0 <= self.extra_views_fraction <= 8.0,
+                f"cameras.extra_views_fraction must be in 0..8 (of the training views), got {self.extra_views_fraction}")
+        require(0.0 < self.extra_views_deg <= 45.0,
+                f"cameras.extra_views_deg must be in 0..45 degrees (exclusive of 0), got {self.extra_views_deg}")
+        return self
 
-@dataclass
+
+@dataclass(frozen=True)
 class TeacherConfig:
     """The teacher: the field volume-rendered for every training view (and the "before" renderer)."""
 
@@ -81,8 +90,16 @@ class TeacherConfig:
     """Field evaluation: "fp32", or "fp16" (half hash-grid tables and MLPs, float32 compositing; as Instant-NGP
     evaluates). Applies to every field evaluation of the run: the teacher, marching cubes, the "before" renders."""
 
+    def validate(self) -> "TeacherConfig":
+        from .precision import check_precision
 
-@dataclass
+        require(8 <= self.occupancy_resolution <= 1024,
+                f"teacher.occupancy_resolution must be in 8..1024 cells, got {self.occupancy_resolution}")
+        check_precision(self.precision)
+        return self
+
+
+@dataclass(frozen=True)
 class GeometryConfig:
     """The mesh: marching cubes, cleanup, decimation, culling, UV unwrap."""
 
@@ -123,8 +140,23 @@ class GeometryConfig:
     unwrap_timeout_s: float = 120.0
     """Time limit for the UV unwrap (xatlas runs in a child process)."""
 
+    def validate(self) -> "GeometryConfig":
+        require(self.face_budget >= 4, f"face budget must be at least 4 faces, got {self.face_budget}; "
+                                       "pass e.g. --face-budget 40000")
+        require(self.face_budget <= MAX_UNWRAP_FACES,
+                f"face budget {self.face_budget} is more than the UV unwrap handles ({MAX_UNWRAP_FACES} faces); "
+                f"pass --face-budget {MAX_UNWRAP_FACES} or less")
+        require(self.grid_resolution >= 16, f"grid resolution must be at least 16, got {self.grid_resolution}")
+        require(0.0 <= self.cull_margin_deg < 90.0,
+                f"cull_margin_deg must be in 0..90 degrees, got {self.cull_margin_deg}")
+        _require_choice(self.surface, SurfaceSource, "geometry.surface")
+        _require_choice(self.shell, ShellSource, "geometry.shell")
+        _require_choice(self.core_level, CoreLevel, "core_level")
+        _require_choice(self.enclose_fringe, Mode, "enclose_fringe")
+        return self
 
-@dataclass
+
+@dataclass(frozen=True)
 class TextureConfig:
     """The neural texture: feature atlas, codebook, MLP shader, and what playback draws."""
 
@@ -206,8 +238,30 @@ class TextureConfig:
     to two thirds more frame time on software OpenGL, a fraction of a millisecond on a GPU (docs/decisions.md
     "Soft silhouettes"). "off" keeps the frame time."""
 
+    def validate(self) -> "TextureConfig":
+        t = self
+        require(t.shell_hidden >= 0, f"texture.shell_hidden must be 0 (as hidden) or positive, got {t.shell_hidden}")
+        _require_choice(t.soft_silhouettes, Mode, "soft_silhouettes")
+        require(t.resolution == 0 or 16 <= t.resolution <= 8192,
+                f"texture resolution must be 0 (automatic) or in 16..8192, got {t.resolution}")
+        require(64 <= t.max_resolution <= 8192, f"max texture resolution must be in 64..8192, got {t.max_resolution}")
+        require(64 <= t.page_size <= 16384, f"texture.page_size must be in 64..16384 texels, got {t.page_size}")
+        require(0 <= t.normal_smoothing <= 1000,
+                f"texture.normal_smoothing must be in 0..1000 rounds, got {t.normal_smoothing}")
+        require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
+        require(1 <= t.output_layers <= 8, f"texture.output_layers must be in 1..8 (1: one rgb), got "
+                                           f"{t.output_layers}")
+        require(1 <= t.coarse_factor <= 64, f"texture.coarse_factor must be in 1..64 (1: no coarse level), got "
+                                           f"{t.coarse_factor}")
+        require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
+        require(0 <= t.quantize_above <= 65535, f"texture.quantize_above must be in 0..65535 texels (what the uint16 "
+                f"index holds; 0: always k-means), got {t.quantize_above}")
+        _require_choice(t.view_dependence, Mode, "view_dependence")
+        _require_choice(t.view_input, ViewInput, "view_input")
+        return self
 
-@dataclass
+
+@dataclass(frozen=True)
 class SkyboxConfig:
     """Neural skyboxes for what lies beyond the mesh (unbounded scenes)."""
 
@@ -234,8 +288,21 @@ class SkyboxConfig:
     ablation: bool = True
     """Also play the bundle without its skybox pass and report the PSNR drop."""
 
+    def validate(self) -> "SkyboxConfig":
+        sb = self
+        _require_choice(sb.mode, Mode, "skybox mode")
+        require(1 <= sb.layers <= 16, f"skybox layer count must be in 1..16, got {sb.layers}")
+        require(sb.near >= 0 and sb.far >= 0, f"skybox distances must be positive (0 = automatic), got "
+                                              f"near={sb.near}, far={sb.far}")
+        require(not (sb.near and sb.far) or sb.far > sb.near or sb.layers == 1,
+                f"skybox layers must nest: far ({sb.far}) must be larger than near ({sb.near})")
+        require(2 <= sb.resolution <= 4096, f"skybox resolution must be in 2..4096, got {sb.resolution}")
+        require(1 <= sb.feature_dim <= 32 and 2 <= sb.num_codes <= 65535 and sb.hidden >= 1,
+                "skybox feature_dim must be in 1..32, num_codes in 2..65535, hidden >= 1")
+        return self
 
-@dataclass
+
+@dataclass(frozen=True)
 class TrainConfig:
     """Fitting the atlas, codebook and shader to the teacher's renders."""
 
@@ -273,8 +340,26 @@ class TrainConfig:
     """Seconds of training between checkpoints in the run's work area (a killed run resumes from the last
     one; ``neural.train_checkpoint``). Does not change the result, so it is not part of any cache key."""
 
+    def validate(self) -> "TrainConfig":
+        tr = self
+        require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
+        require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")
+        require(tr.time_budget_s >= 0,
+                f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
+        require(tr.run_budget_s >= 0,
+                f"the run's time budget must be >= 0 seconds (0: none), got {tr.run_budget_s}; pass --time-budget 600")
+        require(0.0 < tr.lr <= 1.0 and 0.0 < tr.texture_lr_scale <= 100.0,
+                f"train.lr must be in (0, 1] and train.texture_lr_scale in (0, 100], got {tr.lr} and "
+                f"{tr.texture_lr_scale}")
+        require(1 <= tr.patch <= 64 and 1 <= tr.batch_patches <= 4096,
+                f"train.patch must be in 1..64 pixels and train.batch_patches in 1..4096, got {tr.patch} and "
+                f"{tr.batch_patches}")
+        require(0.0 <= tr.vq_warmup <= 1.0, f"vq_warmup must be in 0..1 (1: quantize after training), "
+                                            f"got {tr.vq_warmup}")
+        return self
 
-@dataclass
+
+@dataclass(frozen=True)
 class EvalConfig:
     """The held-out evaluation: frame size, timing, the error-against-run-time curve."""
 
@@ -289,8 +374,12 @@ class EvalConfig:
     runtime_steps: list[int] = field(default_factory=lambda: [32, 64, 128])
     """Ray-marching step counts at which the field is also timed for the error-vs-runtime curve."""
 
+    def validate(self) -> "EvalConfig":
+        require(self.max_upscale >= 0, f"eval.max_upscale must be 0 (no cap) or positive, got {self.max_upscale}")
+        return self
 
-@dataclass
+
+@dataclass(frozen=True)
 class DistillConfig:
     """Every setting of a run, one table per stage (the TOML tables ``[cameras]``, ``[teacher]``, ...)."""
 
@@ -306,94 +395,39 @@ class DistillConfig:
         return dataclasses.asdict(self)
 
     def validate(self) -> "DistillConfig":
-        g, t, tr = self.geometry, self.texture, self.train
-        require(t.shell_hidden >= 0, f"texture.shell_hidden must be 0 (as hidden) or positive, got {t.shell_hidden}")
-        require(g.face_budget >= 4, f"face budget must be at least 4 faces, got {g.face_budget}; "
-                                    "pass e.g. --face-budget 40000")
-        require(g.face_budget <= MAX_UNWRAP_FACES,
-                f"face budget {g.face_budget} is more than the UV unwrap handles ({MAX_UNWRAP_FACES} faces); "
-                f"pass --face-budget {MAX_UNWRAP_FACES} or less")
-        require(self.eval.max_upscale >= 0, f"eval.max_upscale must be 0 (no cap) or positive, got "
-                                            f"{self.eval.max_upscale}")
-        require(g.grid_resolution >= 16, f"grid resolution must be at least 16, got {g.grid_resolution}")
-        require(0.0 <= g.cull_margin_deg < 90.0, f"cull_margin_deg must be in 0..90 degrees, got {g.cull_margin_deg}")
-        _require_choice(self.texture.soft_silhouettes, Mode, "soft_silhouettes")
-        _require_choice(g.surface, SurfaceSource, "geometry.surface")
-        _require_choice(g.shell, ShellSource, "geometry.shell")
-        _require_choice(g.core_level, CoreLevel, "core_level")
-        _require_choice(g.enclose_fringe, Mode, "enclose_fringe")
-        require(t.resolution == 0 or 16 <= t.resolution <= 8192,
-                f"texture resolution must be 0 (automatic) or in 16..8192, got {t.resolution}")
-        require(64 <= t.max_resolution <= 8192, f"max texture resolution must be in 64..8192, got {t.max_resolution}")
-        require(64 <= t.page_size <= 16384, f"texture.page_size must be in 64..16384 texels, got {t.page_size}")
-        require(0 <= t.normal_smoothing <= 1000,
-                f"texture.normal_smoothing must be in 0..1000 rounds, got {t.normal_smoothing}")
-        require(1 <= t.feature_dim <= 32, f"feature_dim must be in 1..32, got {t.feature_dim}")
-        require(1 <= t.output_layers <= 8, f"texture.output_layers must be in 1..8 (1: one rgb), got "
-                                           f"{t.output_layers}")
-        require(1 <= t.coarse_factor <= 64, f"texture.coarse_factor must be in 1..64 (1: no coarse level), got "
-                                           f"{t.coarse_factor}")
-        require(2 <= t.num_codes <= 65535, f"num_codes must be in 2..65535, got {t.num_codes}")
-        require(0 <= t.quantize_above <= 65535, f"texture.quantize_above must be in 0..65535 texels (what the uint16 "
-                f"index holds; 0: always k-means), got {t.quantize_above}")
-        _require_choice(t.view_dependence, Mode, "view_dependence")
-        _require_choice(t.view_input, ViewInput, "view_input")
-        require(tr.steps >= 0, f"training steps must be >= 1, or 0 for automatic, got {tr.steps}")
-        require(tr.checkpoint_every_s > 0, f"train.checkpoint_every_s must be > 0 seconds, got {tr.checkpoint_every_s}")
-        require(tr.time_budget_s >= 0,
-                f"training time budget must be >= 0 seconds (0: automatic), got {tr.time_budget_s}")
-        require(tr.run_budget_s >= 0,
-                f"the run's time budget must be >= 0 seconds (0: none), got {tr.run_budget_s}; pass --time-budget 600")
-        require(0.0 < tr.lr <= 1.0 and 0.0 < tr.texture_lr_scale <= 100.0,
-                f"train.lr must be in (0, 1] and train.texture_lr_scale in (0, 100], got {tr.lr} and "
-                f"{tr.texture_lr_scale}")
-        require(1 <= tr.patch <= 64 and 1 <= tr.batch_patches <= 4096,
-                f"train.patch must be in 1..64 pixels and train.batch_patches in 1..4096, got {tr.patch} and "
-                f"{tr.batch_patches}")
-        require(0.0 <= tr.vq_warmup <= 1.0, f"vq_warmup must be in 0..1 (1: quantize after training), "
-                                            f"got {tr.vq_warmup}")
-        require(8 <= self.teacher.occupancy_resolution <= 1024,
-                f"teacher.occupancy_resolution must be in 8..1024 cells, got {self.teacher.occupancy_resolution}")
+        """Every section's own checks, then those across sections; ``self`` (unchanged: it is frozen)."""
+        for section in (self.cameras, self.teacher, self.geometry, self.texture, self.train, self.eval, self.skybox):
+            section.validate()
         require((self.eval.width == 0 or self.eval.width >= 16) and self.teacher.train_width >= 16,
                 "image widths must be at least 16 (eval width 0: the cameras' own size)")
-        from .precision import check_precision
-        check_precision(self.teacher.precision)
-        c = self.cameras
-        require(c.num_views >= 2, "need at least 2 views (some train, some held out)")
-        _require_choice(c.extra_views, Mode, "cameras.extra_views")
-        require(0.0 <= c.extra_views_fraction <= 8.0,
-                f"cameras.extra_views_fraction must be in 0..8 (of the training views), got {c.extra_views_fraction}")
-        require(0.0 < c.extra_views_deg <= 45.0,
-                f"cameras.extra_views_deg must be in 0..45 degrees (exclusive of 0), got {c.extra_views_deg}")
-        sb = self.skybox
-        _require_choice(sb.mode, Mode, "skybox mode")
-        require(1 <= sb.layers <= 16, f"skybox layer count must be in 1..16, got {sb.layers}")
-        require(sb.near >= 0 and sb.far >= 0, f"skybox distances must be positive (0 = automatic), got "
-                                              f"near={sb.near}, far={sb.far}")
-        require(not (sb.near and sb.far) or sb.far > sb.near or sb.layers == 1,
-                f"skybox layers must nest: far ({sb.far}) must be larger than near ({sb.near})")
-        require(2 <= sb.resolution <= 4096, f"skybox resolution must be in 2..4096, got {sb.resolution}")
-        require(1 <= sb.feature_dim <= 32 and 2 <= sb.num_codes <= 65535 and sb.hidden >= 1,
-                "skybox feature_dim must be in 1..32, num_codes in 2..65535, hidden >= 1")
         return self
 
+    def updated(self, overrides: dict, where: str = "overrides") -> "DistillConfig":
+        """A validated copy with ``overrides`` (nested dicts, as ``load_config``'s) applied; ``self`` is unchanged:
+        ``cfg.updated({"geometry": {"grid_resolution": 48}})``."""
+        return _merged(self, overrides, where).validate()
 
-def _merge(target, overrides: dict, where: str) -> None:
+
+def _merged(target, overrides: dict, where: str):
+    """A copy of the frozen dataclass ``target`` with the nested ``overrides`` applied, each value checked for
+    its setting's type (``where``: what to name in an error)."""
     names = {f.name: f for f in fields(target)}
+    changes = {}
     for key, value in overrides.items():
         require(key in names, f"{where}: unknown setting {key!r}; known: {', '.join(sorted(names))}")
         current = getattr(target, key)
         if is_dataclass(current):
             require(isinstance(value, dict), f"{where}: [{key}] must be a table")
-            _merge(current, value, f"{where} [{key}]")
-        else:
-            if isinstance(current, bool):
-                require(isinstance(value, bool), f"{where}: {key} must be true or false")
-            elif isinstance(current, (int, float)) and not isinstance(current, bool):
-                require(isinstance(value, (int, float)) and not isinstance(value, bool),
-                        f"{where}: {key} must be a number")
-                value = type(current)(value) if isinstance(current, float) or float(value).is_integer() else value
-            setattr(target, key, value)
+            changes[key] = _merged(current, value, f"{where} [{key}]")
+            continue
+        if isinstance(current, bool):
+            require(isinstance(value, bool), f"{where}: {key} must be true or false")
+        elif isinstance(current, (int, float)) and not isinstance(current, bool):
+            require(isinstance(value, (int, float)) and not isinstance(value, bool),
+                    f"{where}: {key} must be a number")
+            value = type(current)(value) if isinstance(current, float) or float(value).is_integer() else value
+        changes[key] = value
+    return dataclasses.replace(target, **changes)
 
 
 def preset_names() -> list[str]:
@@ -408,7 +442,7 @@ def load_config(preset: str | None = None, path: str | Path | None = None,
     if preset:
         require(preset in preset_names(), f"unknown preset {preset!r}; known: {', '.join(preset_names())}")
         text = (resources.files("neuras_distill.configs") / f"{preset}.toml").read_text()
-        _merge(cfg, tomllib.loads(text), f"preset {preset}")
+        cfg = _merged(cfg, tomllib.loads(text), f"preset {preset}")
     if path:
         path = Path(path)
         require(path.is_file(), f"config file {path} does not exist")
@@ -416,7 +450,7 @@ def load_config(preset: str | None = None, path: str | Path | None = None,
             data = tomllib.loads(path.read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise BadInputError(f"config file {path} is not valid TOML: {exc}") from None
-        _merge(cfg, data, str(path))
+        cfg = _merged(cfg, data, str(path))
     if overrides:
-        _merge(cfg, overrides, "overrides")
+        cfg = _merged(cfg, overrides, "overrides")
     return cfg.validate()

@@ -115,9 +115,9 @@ def test_stiff_field_raises_the_teacher_steps_before_rendering():
     from neuras_distill.stability.extreme import make_extreme
 
     field = make_extreme("thin-shell")                # sigma 1e6 in a 0.002 shell
-    cfg = nd.load_config("fast")
-    cfg.teacher.num_steps = nd.DistillConfig().teacher.num_steps      # at its default: the check may raise it
-    cfg.geometry.grid_resolution = 48                                   # chosen: kept, recommendation reported
+    cfg = nd.load_config("fast", overrides={
+        "teacher": {"num_steps": nd.DistillConfig().teacher.num_steps},  # at its default: the check may raise it
+        "geometry": {"grid_resolution": 48}})                           # chosen: kept, recommendation reported
     before = cfg.teacher.num_steps
     caller = cfg
     stab, cfg = _check_stability(field, field.default_cameras(4, 32, 32) if hasattr(field, "default_cameras") else

@@ -120,5 +120,27 @@ def test_a_config_file_changes_a_scenes_own_preset_instead_of_replacing_it(tmp_p
     _, _, tweaked = run_inputs(parse(["from-synthetic", "street", "--config", str(tweak)]))
     assert plain.eval.width != load_config().eval.width             # the street preset is in force
     assert tweaked.texture.num_codes == 1024
-    tweaked.texture.num_codes = plain.texture.num_codes
-    assert tweaked.to_dict() == plain.to_dict()                     # the file changed that one setting only
+    back = tweaked.updated({"texture": {"num_codes": plain.texture.num_codes}})
+    assert back.to_dict() == plain.to_dict()                        # the file changed that one setting only
+
+
+def test_the_configuration_is_frozen_and_each_section_checks_itself():
+    import dataclasses
+
+    from neuras_distill.config import DistillConfig, GeometryConfig, TextureConfig
+
+    cfg = DistillConfig()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.texture.num_codes = 3                                   # a run can never change its caller's settings
+    for section in dataclasses.fields(cfg):
+        part = getattr(cfg, section.name)
+        assert part.validate() is part, section.name
+    with pytest.raises(BadInputError, match="num_codes must be in 2..65535, got 1"):
+        TextureConfig(num_codes=1).validate()
+    with pytest.raises(BadInputError, match="grid resolution must be at least 16, got 8"):
+        GeometryConfig(grid_resolution=8).validate()
+    changed = cfg.updated({"geometry": {"grid_resolution": 48}})
+    assert changed.geometry.grid_resolution == 48
+    assert cfg.geometry.grid_resolution == DistillConfig().geometry.grid_resolution
+    with pytest.raises(BadInputError, match="face budget must be at least 4"):
+        cfg.updated({"geometry": {"face_budget": 2}})              # a changed copy is validated

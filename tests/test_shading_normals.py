@@ -108,9 +108,8 @@ def test_a_bad_normal_smoothing_in_a_manifest_is_refused(tmp_path, value):
 def test_the_setting_is_checked():
     cfg = DistillConfig()
     assert cfg.texture.normal_smoothing == 20 and R_CORE > 0
-    cfg.texture.normal_smoothing = -1
     with pytest.raises(BadInputError, match="normal_smoothing"):
-        cfg.validate()
+        cfg.updated({"texture": {"normal_smoothing": -1}})
 
 
 def test_only_rough_normals_under_a_facing_input_are_smoothed():
@@ -143,7 +142,7 @@ def test_auto_reflects_the_view_direction_about_smooth_normals_only():
     assert [d.kept for d in record.items] == [True, False]
     assert reflected_view_input(smooth, cfg, True, True, record) == (False, None)       # a fringe shell
     assert reflected_view_input(smooth, cfg, False, False, record) == (False, None)     # no direction input
-    cfg.texture.view_input = "direction"
+    cfg = cfg.updated({"texture": {"view_input": "direction"}})
     assert reflected_view_input(smooth, cfg, True, False, record) == (False, None)
-    cfg.texture.view_input = "reflection"
+    cfg = cfg.updated({"texture": {"view_input": "reflection"}})
     assert reflected_view_input(rough, cfg, True, False, record) == (True, None)

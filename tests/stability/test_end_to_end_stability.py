@@ -24,10 +24,11 @@ TINY = {"train": {"steps": 120}, "eval": {"width": 48, "fps_frames": 2, "runtime
 def _distill(name: str, cams_of=None, texture_resolution: int = 64):
     field = make_extreme(name)
     cams = cams_of(field) if cams_of else field.default_cameras(8, 48, 48)
-    cfg = nd.load_config("fast", overrides=TINY)
-    cfg.texture.resolution = texture_resolution                         # 0: automatic
-    cfg.teacher.num_steps = nd.DistillConfig().teacher.num_steps       # at its default: the check may raise it
-    cfg.geometry.grid_resolution = nd.DistillConfig().geometry.grid_resolution
+    defaults = nd.DistillConfig()
+    cfg = nd.load_config("fast", overrides=TINY).updated({
+        "texture": {"resolution": texture_resolution},                  # 0: automatic
+        "teacher": {"num_steps": defaults.teacher.num_steps},           # at its default: the check may raise it
+        "geometry": {"grid_resolution": defaults.geometry.grid_resolution}})
     return nd.distill(field, cams, cfg, progress=False, log=lambda m: None)
 
 
