@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import metrics
 from ..flip_metric import flip
+from ..render.far_region import far_steps_at
 
 if TYPE_CHECKING:
     from ..fields.base import Field
@@ -49,17 +50,11 @@ def _spread_ms(seconds) -> dict:
             "p90_ms": float(np.percentile(ms, 90)), "frames": int(ms.size)}
 
 
-def far_steps(steps: int, far_ratio: float) -> int:
-    """The far-region samples that go with ``steps`` box steps: as many per box step as the run's teacher
-    took (``far_ratio`` = its ``far_steps / num_steps``; 0 keeps the box only)."""
-    return max(1, round(far_ratio * steps)) if far_ratio > 0 else 0
-
-
 def render_reference(field: Field, cameras, steps: int, progress=None, far_ratio: float = 0.0) -> Reference:
     """The field at ``steps`` per box diagonal (and its far region, ``far_steps``) on every camera (not timed)."""
     from ..render.volume import VolumeRenderer
 
-    renderer = VolumeRenderer(field, num_steps=int(steps), far_steps=far_steps(int(steps), far_ratio))
+    renderer = VolumeRenderer(field, num_steps=int(steps), far_steps=far_steps_at(int(steps), far_ratio))
     images = []
     for i in range(len(cameras)):
         images.append(renderer.render(cameras, i)["rgb"])
@@ -75,7 +70,7 @@ def field_points(field: Field, cameras, steps: list[int], reference: Reference, 
     processes, the CPU's clock) falls on every point alike instead of on whichever ran last."""
     from ..render.volume import VolumeRenderer
 
-    renderers = [VolumeRenderer(field, num_steps=int(s), far_steps=far_steps(int(s), far_ratio)) for s in steps]
+    renderers = [VolumeRenderer(field, num_steps=int(s), far_steps=far_steps_at(int(s), far_ratio)) for s in steps]
     for r in renderers:
         r.render(cameras, 0)
     images = [[] for _ in steps]

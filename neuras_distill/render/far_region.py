@@ -30,6 +30,13 @@ from .compositing import exclusive_cumsum, optical_depth
 MAX_FAR_RATIO = float(2**24)
 
 
+def far_steps_at(steps: int, far_ratio: float) -> int:
+    """The far-region samples that go with a march of ``steps`` box steps: as many per box step as the run's
+    teacher took (``far_ratio`` = its ``teacher.far_steps / teacher.num_steps``; 0 keeps the box only). The
+    error-against-run-time curve and the bench scale the far region by it."""
+    return max(1, round(far_ratio * steps)) if far_ratio > 0 else 0
+
+
 @dataclass(frozen=True)
 class FarRegion:
     """The far region of an unbounded field, world units along unit rays from the camera.

@@ -12,6 +12,7 @@ from ...playback.projection import shift_cameras
 from ...playback.rasterize import rasterize_gbuffer
 from ...playback.renderer import BundleRenderer
 from ...render.cameras import Cameras
+from ...render.far_region import far_steps_at
 from ...render.occupancy import OccupancyGrid
 from ...render.volume import VolumeRenderer
 from .. import evaluate
@@ -78,7 +79,7 @@ def evaluation_stage(ctx: RunContext, views: CameraSplit, teacher: VolumeRendere
     grid = curve_occupancy(ctx, teacher)
     far = cfg.teacher.far_steps / cfg.teacher.num_steps        # the far region's samples scale with the box's
     points = evaluate.error_vs_runtime(lambda s: VolumeRenderer(ctx.field, num_steps=s, occupancy=grid,
-                                                                far_steps=max(1, round(far * s)) if far else 0), test,
+                                                                far_steps=far_steps_at(s, far)), test,
                                        2 * cfg.teacher.num_steps, cfg.eval.runtime_steps,
                                        cfg.teacher.num_steps, player,
                                        main_render=(field_images[0], field_views.seconds[0]))
