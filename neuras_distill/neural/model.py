@@ -23,6 +23,7 @@ from torch import nn
 from neuras_distill.config import TextureConfig
 from neuras_distill.errors import BadInputError
 from neuras_distill.neural.shader import MLPShader
+from neuras_distill.neural.shader_inputs import ShaderInputs
 from neuras_distill.neural.texture import NeuralTexture, bilinear_corners
 from neuras_distill.neural.vq import VectorQuantizer
 
@@ -104,18 +105,16 @@ class NeuralTextureModel(nn.Module):
     """
 
     @classmethod
-    def for_atlas(cls, config: TextureConfig, tex_height: int, tex_width: int, *, pages: int = 1,
-                  mesh_layers: int = 1, use_viewdir: bool = True, use_facing: bool = False,
-                  core_viewdir: bool | None = None, coarse_factor: int | None = None,
-                  view_reflect: bool = False) -> NeuralTextureModel:
+    def for_atlas(cls, config: TextureConfig, tex_height: int, tex_width: int, inputs: ShaderInputs, *,
+                  pages: int = 1, mesh_layers: int = 1, coarse_factor: int | None = None) -> NeuralTextureModel:
         """The model the texture section ``config`` describes (feature_dim, num_codes, hidden, num_layers,
         output_layers, shell_hidden, quantize, quantize_above, coarse_factor unless the pipeline chose another) for a
-        ``tex_height`` x ``tex_width`` atlas of ``pages`` pages, with the mesh's layers and the shader inputs the
-        pipeline chose (arguments as for the constructor)."""
+        ``tex_height`` x ``tex_width`` atlas of ``pages`` pages, with the mesh's layers and the shader ``inputs``
+        the pipeline chose (``neural.shader_inputs.ShaderInputs``, taken whole)."""
         return cls(tex_height, tex_width, feature_dim=config.feature_dim, num_codes=config.num_codes,
                    hidden=config.hidden, num_layers=config.num_layers, output_layers=config.output_layers,
-                   use_viewdir=use_viewdir, use_vq=config.quantize, use_facing=use_facing, mesh_layers=mesh_layers,
-                   core_viewdir=core_viewdir, view_reflect=view_reflect,
+                   use_viewdir=inputs.use_viewdir, use_vq=config.quantize, use_facing=inputs.use_facing,
+                   mesh_layers=mesh_layers, core_viewdir=inputs.core_viewdir, view_reflect=inputs.reflect,
                    shell_hidden=config.shell_hidden, pages=pages, quantize_above=config.quantize_above,
                    coarse_factor=config.coarse_factor if coarse_factor is None else coarse_factor)
 

@@ -13,13 +13,13 @@ import torch
 from .. import __version__
 from ..bake.bundle import Bundle
 from ..geometry.unwrap import atlas_shape
+from ..neural.shader_inputs import ShaderInputs
 from .stage_results import (
     Backdrop,
     CameraSplit,
     DistilledModel,
     Evaluation,
     GeometryResult,
-    ShaderInputs,
     TrainingPlan,
     TrainingViews,
 )

@@ -192,22 +192,6 @@ class TrainingPlan:
 
 
 @dataclass
-class ShaderInputs:
-    """What the shader takes besides the features: ``use_viewdir`` (with the ``view_spread`` measured, None when
-    not measured), ``use_facing`` (|n . d|, for a fringe shell), ``core_viewdir`` (the core shader's own
-    choice on a two-layer mesh; None: as ``use_viewdir``), ``reflect`` (the direction input is the view
-    direction reflected about the shading normal, ``texture.view_input``) and ``normal_roughness_deg`` (the
-    mesh's ``MeshData.normal_roughness_deg`` at ``texture.normal_smoothing`` rounds, None: not measured)."""
-
-    use_viewdir: bool
-    view_spread: float | None
-    use_facing: bool
-    core_viewdir: bool | None
-    reflect: bool = False
-    normal_roughness_deg: float | None = None
-
-
-@dataclass
 class TrainingViews:
     """The training views as the distillation sees them: ``origin`` ((3,) float64 world position everything
     below is relative to), ``mesh`` (the unwrapped mesh relative to it, float32), ``gbuffer`` (per view

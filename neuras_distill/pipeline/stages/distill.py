@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from ...geometry.unwrap import atlas_shape
 from ...neural.model import NeuralTextureModel
+from ...neural.shader_inputs import ShaderInputs
 from ...neural.train import fit
 from ...neural.train_checkpoint import TrainCheckpoint
 from .. import choices
@@ -12,7 +13,6 @@ from ..cache import digest
 from ..stage_results import (
     Backdrop,
     DistilledModel,
-    ShaderInputs,
     TeacherResult,
     TrainedModel,
     TrainingPlan,
@@ -36,10 +36,8 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
                                f"{plan.steps} steps" + (f" (at most {plan.time_budget_s:.0f} s)"
                                                         if plan.time_budget_s else ""))
     coarse = choices.coarse_level(t.coarse_factor, plan, ctx.decisions)
-    model = NeuralTextureModel.for_atlas(t, height, side, pages=pages, mesh_layers=len(training.mesh.layers()),
-                                         use_viewdir=inputs.use_viewdir, use_facing=inputs.use_facing,
-                                         core_viewdir=inputs.core_viewdir, coarse_factor=coarse,
-                                         view_reflect=inputs.reflect)
+    model = NeuralTextureModel.for_atlas(t, height, side, inputs, pages=pages,
+                                         mesh_layers=len(training.mesh.layers()), coarse_factor=coarse)
     skybox = backdrop.skybox
     key = digest("distill", ctx.keys["gbuffer"], ctx.keys["plan"], plan.steps, plan.time_budget_s,
                  settings(cfg.texture), settings(cfg.train, ("checkpoint_every_s",)), settings(cfg.skybox),

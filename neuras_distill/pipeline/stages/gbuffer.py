@@ -8,6 +8,7 @@ import torch
 
 from ...geometry.mesh import MeshData
 from ...neural.model import view_inputs
+from ...neural.shader_inputs import ShaderInputs
 from ...playback.rasterize import rasterize_gbuffer
 from .. import choices
 from ..cache import digest
@@ -15,7 +16,6 @@ from ..stage_results import (
     Backdrop,
     CameraSplit,
     GeometryResult,
-    ShaderInputs,
     TeacherResult,
     TrainingViews,
     load_gbuffer,

@@ -9,9 +9,10 @@ import numpy as np
 from ...errors import require
 from ...geometry.extract import SHELL_TEXEL_SCALE, Surface, extract_surface, unwrap_surface
 from ...geometry.unwrap import atlas_shape
+from ...neural.shader_inputs import ShaderInputs
 from .. import choices, rules
 from ..cache import digest
-from ..stage_results import CameraSplit, GeometryResult, ShaderInputs, TeacherResult, TrainingPlan
+from ..stage_results import CameraSplit, GeometryResult, TeacherResult, TrainingPlan
 from .context import RunContext, settings
 
 
