@@ -104,6 +104,9 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
     require(launch is None or nproc == 1,
             f"--nproc {nproc} spawns processes on this machine, but {launch and launch.launcher} already launched "
             f"{launch and launch.world}: leave --nproc out and launch one process per share")
+    require(launch is None or device.type == "cpu",
+            f"{launch and launch.launcher}: the ranks share the teacher and training as CPU processes; pass "
+            f"--device cpu (on {device}, run one process: the GPU does the work of many CPU ranks)")
     if launch is not None and launch.rank != 0:
         log, progress = (lambda msg: None), False        # rank 0 speaks for the run
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))

@@ -11,8 +11,9 @@ Launchers: torchrun sets ``RANK``, ``WORLD_SIZE``, ``LOCAL_RANK``, ``LOCAL_WORLD
 no launch: the run is a plain one-process run.
 
 Every rank builds the field itself from the same source (a checkpoint path every node can read, or an embedded
-scene) and runs the same command; rank 0 alone writes the run folder and the report. Backends: gloo for the
-CPU; with a CUDA device, NCCL for CUDA tensors and gloo for the rest (``"cpu:gloo,cuda:nccl"``).
+scene) and runs the same command; rank 0 alone writes the run folder and the report. The group is gloo; the ranks
+are CPU processes (``--device cpu``), as ``--nproc``'s are: data-parallel training exchanges CPU gradients.
+:func:`join_group` would form ``"cpu:gloo,cuda:nccl"`` for CUDA ranks, which no run uses yet.
 """
 
 from __future__ import annotations
