@@ -486,28 +486,22 @@ def _scale(c: _Ctx) -> Item:
         if precise:
             return Item("scale.float32", "scale", values, "fine",
                         f"{where}, and the field computes positions in float64")
-        if ratio <= ULP_FINE:
-            return Item("scale.float32", "scale", values, "fine",
-                        f"{where}; the field rounds positions to float32, {ratio:.2g} of the finest step")
-        if ratio <= ULP_REFUSE:
-            return Item("scale.float32", "scale", values, "adapted",
-                        f"{where}, but the field rounds positions to float32 there: {ratio:.2g} of a voxel/step; "
-                        "compute positions in float64 in the field to remove it", {})
-        return Item("scale.float32", "scale", values, "refused",
+        messages = (f"{where}; the field rounds positions to float32, {ratio:.2g} of the finest step",
+                    f"{where}, but the field rounds positions to float32 there: {ratio:.2g} of a voxel/step; "
+                    "compute positions in float64 in the field to remove it",
                     f"{where}, but the field rounds positions to float32 there: {ulp:.2g} apart, {ratio:.2g} of its "
                     f"finest step {finest:.3g}; compute positions in float64 in the field (subtract a float64 centre "
                     "before casting)")
-    if ratio <= ULP_FINE:
-        return Item("scale.float32", "scale", values, "fine",
-                    f"float32 resolves positions to {ratio:.2g} of the finest step")
-    if ratio <= ULP_REFUSE:
-        return Item("scale.float32", "scale", values, "adapted",
+    else:
+        messages = (f"float32 resolves positions to {ratio:.2g} of the finest step",
                     f"float32 positions are quantised to {ratio:.2g} of a voxel/step; every float32 stage after "
-                    "the teacher works relative to the box's centre", {})
-    return Item("scale.float32", "scale", values, "refused",
-                f"the box lies {far:.3g} units from the origin but its finest step is {finest:.3g}: float32 "
-                f"positions are quantised to {ratio:.2g} of a step; recentre the field (subtract a float64 "
-                "centre from positions and cameras) before distilling")
+                    "the teacher works relative to the box's centre",
+                    f"the box lies {far:.3g} units from the origin but its finest step is {finest:.3g}: float32 "
+                    f"positions are quantised to {ratio:.2g} of a step; recentre the field (subtract a float64 "
+                    "centre from positions and cameras) before distilling")
+    level = 0 if ratio <= ULP_FINE else 1 if ratio <= ULP_REFUSE else 2
+    verdict = ("fine", "adapted", "refused")[level]
+    return Item("scale.float32", "scale", values, verdict, messages[level], *(({},) if verdict == "adapted" else ()))
 
 
 def _colour(c: _Ctx, max_points: int = 4096) -> list[Item]:
