@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -24,6 +24,10 @@ from ..playback.gbuffer import GBuffer
 from ..render.cameras import Cameras
 from .cache import load_arrays, load_json, save_arrays, save_json
 
+if TYPE_CHECKING:
+    from ..neural.model import NeuralTextureModel
+    from ..neural.skybox import SkyboxLayers, SkyboxModel
+
 
 @dataclass
 class CameraSplit:
@@ -32,7 +36,7 @@ class CameraSplit:
 
     train: Cameras
     test: Cameras
-    sky_layers: Any = None
+    sky_layers: SkyboxLayers | None = None
 
 
 @dataclass
@@ -202,7 +206,7 @@ class TrainingViews:
     origin: np.ndarray
     mesh: MeshData
     gbuffer: GBuffer
-    dirs: Any
+    dirs: np.ndarray
 
 
 @dataclass
@@ -212,7 +216,7 @@ class Backdrop:
     the ``reason`` of that choice, the ``clear`` colour ((3,) float32 tensor), and ``sky_pixels`` ((N, H, W)
     bool, the uncovered training pixels the skyboxes learn from; None: all of them)."""
 
-    skybox: Any
+    skybox: SkyboxModel | None
     sky_origins: np.ndarray | None
     reason: str
     clear: torch.Tensor
@@ -224,8 +228,8 @@ class DistilledModel:
     """The distill stage's outcome: the trained ``model`` (``NeuralTextureModel``, eval mode), its ``skybox``
     (or None) and the training log (``TrainLog.as_dict()``)."""
 
-    model: Any
-    skybox: Any
+    model: NeuralTextureModel
+    skybox: SkyboxModel | None
     log: dict
 
 

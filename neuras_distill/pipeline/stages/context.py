@@ -8,7 +8,7 @@ import time
 import zlib
 from dataclasses import asdict, dataclass, field as dataclass_field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 import torch
@@ -22,6 +22,9 @@ from ...playback.projection import shift_cameras
 from ...render.local_frame import LocalFrameField, box_centre
 from ..cache import StageCache, field_fingerprint
 from ..choices import Background, Decisions
+
+if TYPE_CHECKING:
+    from ..parallel import RenderPool
 
 #: The stages of a run, in order (their manifests are ``stages/<name>/manifest.json`` in the run folder).
 STAGE_NAMES = ("cameras", "teacher", "geometry", "gbuffer", "distill", "bake", "evaluate")
@@ -114,7 +117,7 @@ class RunContext:
     decisions: Decisions = dataclass_field(default_factory=Decisions)
     keys: dict = dataclass_field(default_factory=dict)
     device: torch.device = dataclass_field(default_factory=lambda: torch.device("cpu"))
-    pool: object = None
+    pool: RenderPool | None = None
 
     def __post_init__(self) -> None:
         if self.clock is None:
