@@ -5,6 +5,7 @@ the surviving rank when a node dies, after which the same command resumes."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import socket
@@ -83,10 +84,8 @@ def _kill_node(proc: subprocess.Popen) -> None:
         tree.append(pid)
         todo += children.get(pid, [])
     for pid in reversed(tree):
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(pid, 9)
-        except ProcessLookupError:
-            pass
 
 
 def _our_lines(log: Path) -> list[str]:
