@@ -60,6 +60,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     out = args.out or args.run
+    out.mkdir(parents=True, exist_ok=True)
     report = json.loads((args.run / "report.json").read_text())
     teacher_cfg = report["config"]["teacher"]
     cameras, reference = reference_cameras(args.fixture)
