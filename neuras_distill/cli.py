@@ -160,8 +160,20 @@ def _export_web(args) -> int:
     return 0
 
 
+def _export_threejs(args) -> int:
+    from .errors import BadInputError
+    from .export.threejs import export_threejs
+
+    if not args.three:
+        raise BadInputError("--format threejs needs --three THREE_DIR: the three.js package to copy "
+                            "(node_modules/three of a local `npm install three`)")
+    out, version = export_threejs(args.bundle, args.out, args.three, _max_texture_size(args))
+    print(f"wrote {out} with three.js {version} (serve it with `python -m http.server` inside it, open index.html)")
+    return 0
+
+
 #: ``export --format`` values and their writers (each raises BadInputError for bad input, writes atomically).
-EXPORT_FORMATS = {"gltf": _export_gltf, "web": _export_web}
+EXPORT_FORMATS = {"gltf": _export_gltf, "web": _export_web, "threejs": _export_threejs}
 assert tuple(EXPORT_FORMATS) == EXPORT_FORMAT_NAMES
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 
 #: The formats ``neuras-distill export --format`` writes.
-EXPORT_FORMAT_NAMES = ("gltf", "web")
+EXPORT_FORMAT_NAMES = ("gltf", "web", "threejs")
 
 
 def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None) -> None:
@@ -151,14 +151,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file; "
-                                         "web: a static folder that plays it in a browser)")
+                                         "web: a static folder that plays it in a browser; threejs: a three.js "
+                                         "page with the glb and the plugin that plays its neural material)")
     p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
     p.add_argument("--format", required=True, metavar="FORMAT",
                    help=f"output format: {', '.join(EXPORT_FORMAT_NAMES)} (gltf: glTF 2.0 binary, the mesh with its "
                         "plain RGB texture, unlit, plus the whole neural bundle inside; load_bundle reads it; web: "
                         "index.html + WebGL2 player + data, the same shaders in GLSL ES 3.00; view it with "
-                        "`python -m http.server` inside the folder, index.html?camera=N plays held-out camera N)")
-    p.add_argument("--out", required=True, help="output file or folder (gltf: a .glb path; web: a folder); an "
+                        "`python -m http.server` inside the folder, index.html?camera=N plays held-out camera N; "
+                        "threejs: index.html, the glb, the three.js plugin neuras-three.js and three.js copied from "
+                        "--three, served the same way)")
+    p.add_argument("--three", default=None, metavar="THREE_DIR",
+                   help="threejs only: the three.js package to copy into the page (node_modules/three of a local "
+                        "`npm install three`; tested with 0.187)")
+    p.add_argument("--out", required=True, help="output file or folder (gltf: a .glb path; web, threejs: a folder); an "
                                                 "existing one is replaced only when neuras-distill wrote it")
     p.add_argument("--max-texture-size", default=None, metavar="N",
                    help="largest texture side the export writes, in texels (default 4096, a side WebGL2 browsers "

@@ -26,7 +26,8 @@ if ! .venv/bin/python -c "import torch" >/dev/null 2>&1; then
 fi
 .venv/bin/python -m pip install -q -e ".[test]"
 # the Khronos glTF-Validator (tests/test_gltf.py, scripts/gltf_validate.mjs) and three.js (its GLTFLoader:
-# tests/test_gltf_viewers.py, scripts/gltf_three_render.html) into .tools/ when node and npm exist
+# tests/test_gltf_viewers.py, scripts/gltf_three_render.html; the page of export --format threejs:
+# tests/test_threejs.py; the README names this version) into .tools/ when node and npm exist
 if command -v node >/dev/null 2>&1 && command -v npm >/dev/null 2>&1; then
   [ -d .tools/node_modules/gltf-validator ] \
     || npm install --silent --no-fund --no-audit --prefix .tools gltf-validator@2.0.0-dev.3.10 >/dev/null \

@@ -137,7 +137,10 @@ def test_the_khronos_validator_finds_no_errors(tmp_path, kind):
     issues = report["issues"]
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
     assert run.returncode == 0
-    assert report["info"]["extensionsUsed"] == ["KHR_materials_unlit", "NEURAS_bundle"]
+    assert report["info"]["extensionsUsed"] == ["KHR_materials_unlit", "NEURAS_bundle", "NEURAS_neural_material"]
+    assert "extensionsRequired" not in json.loads(glb.read_bytes()[20:20 + struct.unpack_from("<I", glb.read_bytes(),
+                                                                                              12)[0]])
+    assert all(m["severity"] >= 2 for m in issues["messages"])         # infos: e.g. our extensions, unknown to it
     assert report["info"]["resources"][1]["image"]["format"] == "rgb"
 
 
@@ -235,8 +238,9 @@ def _image_sizes(glb: Path) -> list[tuple[int, int]]:
 
 
 def test_every_image_obeys_the_texture_limit_or_nothing_is_written(tmp_path, capsys):
-    """Default 4096 texels a side; ``--max-texture-size N`` for other targets. A plain texture (or page) above the
-    limit cannot be cut without unwrapping again: exit 2 naming it, its size, the limit and the fix."""
+    """Default 4096 texels a side; ``--max-texture-size N`` for other targets, for the images and the neural
+    material's textures alike (a codebook is wrapped to fit, as for the web player). A plain texture (or page)
+    above the limit cannot be cut without unwrapping again: exit 2 naming it, its size, the limit and the fix."""
     single, paged = small_bundle(tmp_path, "single", "s"), small_bundle(tmp_path, "paged", "p")
     out_dir = tmp_path / "out"
     out_dir.mkdir()
@@ -251,9 +255,15 @@ def test_every_image_obeys_the_texture_limit_or_nothing_is_written(tmp_path, cap
                         "--max-texture-size", limit]), capsys.readouterr().err
         assert rc == 2 and words in _one_line(err), err
     assert sorted(p.name for p in out_dir.iterdir()) == ["s.glb"]        # nothing written, no temporary left
+    rc, err = main(["export", str(paged), "--format", "gltf", "--out", str(out_dir / "p.glb"),
+                    "--max-texture-size", "8"]), capsys.readouterr().err     # the neural codebook: 64 codes x 2
+    assert rc == 2 and "texture u_codebook is 2x64" in err and "--max-texture-size 12" in err, err
     assert main(["export", str(paged), "--format", "gltf", "--out", str(out_dir / "p.glb"),
-                 "--max-texture-size", "8"]) == 0
-    assert _image_sizes(out_dir / "p.glb") == [(8, 8), (8, 8)]          # one image per page, each at the limit
+                 "--max-texture-size", "12"]) == 0
+    assert _image_sizes(out_dir / "p.glb") == [(8, 8), (8, 8)]          # one image per page, each within it
+    doc, _ = _glb_json(out_dir / "p.glb")
+    neural = doc["nodes"][0]["extensions"]["NEURAS_neural_material"]["textures"]
+    assert max(max(t["width"], t["height"]) for t in neural) <= 12      # the neural material's textures too
 
 
 def test_the_base_colour_is_the_stored_plain_texture(tmp_path):

@@ -57,10 +57,13 @@ from ..bake.glb_reader import (
     EXTENSION_VERSION,
     GENERATOR,
     GLB_MAGIC,
+    NEURAL_EXTENSION,
     read_bundle_files,
     written_by_us,
 )
 from ..errors import BadInputError
+from .gltf_neural import neural_material_extension
+from .playable import playable_bundle
 from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, check_side, checked_limit
 
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -147,6 +150,13 @@ def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_M
     file_views = {}
     for name in ("manifest.json", *sorted(n for n in files if n != "manifest.json")):
         file_views[name] = binary.add(files[name], None, name)
+    parts = playable_bundle(bundle, max_texture_size)
+
+    def add_accessor(acc: dict) -> int:
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    neural = neural_material_extension(parts, lambda data, name: binary.add(data, None, name), add_accessor)
     if pages == 1:
         images = [{"name": PLAIN_FILE, "bufferView": file_views[PLAIN_FILE], "mimeType": "image/png"}]
     else:                              # the stacked plain texture cut into its pages, one PNG each
@@ -161,12 +171,13 @@ def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_M
                   "extensions": {"KHR_materials_unlit": {}}} for page in range(pages)]
     doc = {
         "asset": {"version": "2.0", "generator": f"{GENERATOR} {__version__}"},
-        "extensionsUsed": ["KHR_materials_unlit", EXTENSION],
+        "extensionsUsed": ["KHR_materials_unlit", EXTENSION, NEURAL_EXTENSION],
         "extensions": {EXTENSION: {"version": EXTENSION_VERSION, "files": file_views}},
         "scene": 0,
         "scenes": [{"name": "neuras bundle", "nodes": [0]}],
         "nodes": [{"name": "neuras bundle", "mesh": 0,
-                   **({"translation": [float(x) for x in bundle.origin]} if bundle.origin.any() else {})}],
+                   **({"translation": [float(x) for x in bundle.origin]} if bundle.origin.any() else {}),
+                   "extensions": {NEURAL_EXTENSION: neural}}],
         "meshes": [{"name": "bundle mesh" + (" (core)" if bundle.mesh.core_faces else ""),
                     "primitives": primitives}],
         "materials": materials,

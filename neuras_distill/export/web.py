@@ -51,12 +51,10 @@ import time
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
-
 from .. import __version__
-from ..bake.bundle import PAGED_TEXTURES, atlas_pages
 from ..errors import BadInputError
-from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, checked_limit, fit_bundle_textures
+from .playable import playable_bundle
+from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, checked_limit
 
 MARKER = ".neuras-distill-web"
 PLAYER_FILES = ("index.html", "player.js")
@@ -64,7 +62,7 @@ DATA_SCRIPT = "data.js"
 DEFAULT_CAMERA_SIZE = (640, 480)
 
 
-def _cameras_json(bundle, src: Path) -> bytes:
+def cameras_json(bundle, src: Path) -> bytes:
     """cameras.json bytes: the run's (beside the bundle), validated, or a default orbit camera."""
     from ..render.cameras import Cameras
 
@@ -87,60 +85,41 @@ def web_files(bundle, cameras_json: bytes, max_texture_size: int = DEFAULT_MAX_T
     """{relative path: bytes} of the web folder for a loaded ``bundle`` (see the module docstring), the marker
     included, every texture at most ``max_texture_size`` texels a side (``texture_limit.fit_bundle_textures``;
     BadInputError naming a texture that cannot fit)."""
-    from ..bake.glsl import to_glsl_es
-    from ..bake.glsl_sky import SKY_VERTEX_SHADER
-    from ..playback.projection import mesh_bounds
-    from ..playback.rasterize import mesh_layers
-    from ..playback.shaders import SILHOUETTE_FRAGMENT_SHADER, SILHOUETTE_VERTEX_SHADER, VERTEX_SHADER, shader_variant
-
     limit = checked_limit(max_texture_size)
-    fitted, fragment_shader, sky_fragment_shader = fit_bundle_textures(bundle, limit)
-    mesh = bundle.mesh
-    manifest = dict(getattr(bundle, "manifest", None) or {})
+    parts = playable_bundle(bundle, limit)
     files: dict[str, bytes] = {}
-    uvs = mesh.uvs if mesh.uvs is not None else np.zeros((mesh.num_vertices, 2), np.float32)
-    vbo = np.concatenate([mesh.vertices, uvs, mesh.vertex_normals()], axis=1)
-    files["mesh.bin"] = np.ascontiguousarray(vbo, dtype="<f4").tobytes()
-    files["faces.bin"] = np.ascontiguousarray(mesh.faces, dtype="<u4").tobytes()
+    files["mesh.bin"] = parts.vertices.astype("<f4", copy=False).tobytes()
+    files["faces.bin"] = parts.faces.astype("<u4", copy=False).tobytes()
     textures = []
-    pages = atlas_pages(manifest)
-    for name, arr in sorted(fitted.items()):
-        arr = np.ascontiguousarray(arr)
-        if arr.dtype not in (np.uint16, np.float32) or arr.ndim not in (2, 3) or \
-                (arr.ndim == 3 and not 1 <= arr.shape[2] <= 4):
-            raise BadInputError(f"bundle texture {name!r} is {arr.dtype} {arr.shape}; expected uint16 or float32 "
-                                "(H, W[, C]) with C in 1..4")
-        file = f"tex_{name}.bin"
-        files[file] = arr.astype(arr.dtype.newbyteorder("<"), copy=False).tobytes()
-        textures.append({"name": name, "file": file, "width": int(arr.shape[1]), "height": int(arr.shape[0]),
-                         "components": 1 if arr.ndim == 2 else int(arr.shape[2]),
-                         "type": "uint16" if arr.dtype == np.uint16 else "float32",
-                         **({"layers": pages} if pages > 1 and name in PAGED_TEXTURES else {})})
-    layers = [[float(layer), int(first), int(count)] for layer, first, count in mesh_layers(mesh)]
+    for tex in parts.textures:
+        file = f"tex_{tex.name}.bin"
+        files[file] = tex.data.astype(tex.data.dtype.newbyteorder("<"), copy=False).tobytes()
+        textures.append({"name": tex.name, "file": file, "width": int(tex.data.shape[1]),
+                         "height": int(tex.data.shape[0]), "components": tex.components, "type": tex.kind,
+                         **({"layers": tex.layers} if tex.layers > 1 else {})})
     programs = {}
-    for layer in sorted({max(0, int(layer)) for layer, _, _ in layers} or {0}):
-        programs[str(layer)] = f"shaders/mesh{layer}.frag"
-        files[programs[str(layer)]] = shader_variant(to_glsl_es(fragment_shader), layer).encode("utf-8")
-    files["shaders/mesh.vert"] = to_glsl_es(VERTEX_SHADER).encode("utf-8")
+    for layer, source in parts.programs.items():
+        programs[layer] = f"shaders/mesh{layer}.frag"
+        files[programs[layer]] = source.encode("utf-8")
+    files["shaders/mesh.vert"] = parts.vertex_shader.encode("utf-8")
     sky = None
-    if sky_fragment_shader:
-        files["shaders/sky.vert"] = to_glsl_es(SKY_VERTEX_SHADER).encode("utf-8")
-        files["shaders/sky.frag"] = to_glsl_es(sky_fragment_shader).encode("utf-8")
+    if parts.sky is not None:
+        files["shaders/sky.vert"], files["shaders/sky.frag"] = (s.encode("utf-8") for s in parts.sky[:2])
         sky = {"vertex": "shaders/sky.vert", "fragment": "shaders/sky.frag",
-               "center": [float(x) for x in np.asarray(manifest["skybox"]["center"], np.float64).reshape(3)]}
+               "center": [float(x) for x in parts.sky[2]]}
     silhouette = None
-    if manifest.get("silhouette_blend", False):
-        files["shaders/silhouette.vert"] = to_glsl_es(SILHOUETTE_VERTEX_SHADER).encode("utf-8")
-        files["shaders/silhouette.frag"] = to_glsl_es(SILHOUETTE_FRAGMENT_SHADER).encode("utf-8")
+    if parts.silhouette is not None:
+        files["shaders/silhouette.vert"], files["shaders/silhouette.frag"] = (s.encode("utf-8")
+                                                                              for s in parts.silhouette)
         silhouette = {"vertex": "shaders/silhouette.vert", "fragment": "shaders/silhouette.frag"}
     scene = {
         "generator": f"neuras-distill {__version__}",
-        "background": [float(c) for c in np.asarray(bundle.background_color, np.float64).reshape(3)],
-        "origin": [float(x) for x in np.asarray(getattr(bundle, "origin", np.zeros(3)), np.float64).reshape(3)],
-        "bounds": mesh_bounds(mesh.vertices).tolist(),
-        "cull_back_faces": bool(manifest.get("cull_back_faces", False)),
-        "mesh": {"vertices": int(mesh.num_vertices), "faces": int(mesh.num_faces), "vbo": "mesh.bin",
-                 "ibo": "faces.bin", "layers": layers},
+        "background": [float(c) for c in parts.background],
+        "origin": [float(x) for x in parts.origin],
+        "bounds": parts.bounds.tolist(),
+        "cull_back_faces": parts.cull_back_faces,
+        "mesh": {"vertices": int(len(parts.vertices)), "faces": int(len(parts.faces)), "vbo": "mesh.bin",
+                 "ibo": "faces.bin", "layers": parts.layers},
         "vertex_shader": "shaders/mesh.vert", "programs": programs, "textures": textures,
         "max_texture_size": limit,
         "sky": sky, "silhouette": silhouette,
@@ -183,7 +162,7 @@ def export_web(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZ
     if not src.exists():
         raise BadInputError(f"bundle {src} does not exist")
     bundle = load_bundle(src)
-    files = web_files(bundle, _cameras_json(bundle, src.resolve()), limit)
+    files = web_files(bundle, cameras_json(bundle, src.resolve()), limit)
     out.parent.mkdir(parents=True, exist_ok=True)
     stamp = f"{os.getpid()}-{int(time.time() * 1000)}"
     tmp, old = out.parent / f".{out.name}.tmp-{stamp}", out.parent / f".{out.name}.old-{stamp}"
@@ -202,4 +181,4 @@ def export_web(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZ
     return out
 
 
-__all__ = ["DATA_SCRIPT", "MARKER", "data_script", "export_web", "web_files"]
+__all__ = ["DATA_SCRIPT", "MARKER", "cameras_json", "data_script", "export_web", "web_files"]

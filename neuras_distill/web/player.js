@@ -19,7 +19,9 @@
 // shows the canvas as wide as the page (the report's iframe); the frame keeps the camera's size.
 // Drag to orbit (around the point of the view axis level with the mesh centre), wheel to zoom. The FPS counter
 // shows frames drawn per second (requestAnimationFrame: capped by the display's refresh rate).
-// window.neurasReady = true once the first frame is complete; window.neurasError = the message on failure.
+// window.neurasReady = true once the first frame is complete; window.neurasError = the message on failure;
+// window.neurasTimeFrames(n) draws n frames back to back, each read back, and returns their times in ms
+// (benchmarks/threejs_frame_time.py; the three.js page has the same hook).
 // The binary files are little-endian; typed arrays read them as the platform's order (little-endian everywhere
 // WebGL2 runs in practice).
 "use strict";
@@ -473,6 +475,16 @@
       }
       requestAnimationFrame(frame);
     }
+    window.neurasTimeFrames = (count) => {   // ms of each of `count` frames, each finished before the next
+      const pixel = new Uint8Array(4), times = [];
+      for (let i = 0; i < count; i++) {
+        const t = performance.now();
+        draw(cam);
+        gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);
+        times.push(performance.now() - t);
+      }
+      return times;
+    };
     requestAnimationFrame(frame);
   }
 
