@@ -285,7 +285,8 @@ def test_a_damaged_extension_logs_one_error_and_shows_the_plain_texture(runs, pa
     assert psnr(got, plain) >= 60.0, "the plain-texture mesh is what shows"
 
 
-#: A page that draws the bundle with an opaque three.js plane through its middle, drawn before or after it.
+#: A page that draws the bundle (``?order=N``: with an opaque three.js plane through its middle, of renderOrder N;
+#: ``?linear``: into a linear output colour space).
 OCCLUSION_PAGE = """<!DOCTYPE html><html><head><meta charset="utf-8">
 <script type="importmap">{"imports": {"three": "./three/build/three.module.js",
                                       "three/addons/": "./three/examples/jsm/"}}</script></head>
@@ -293,7 +294,7 @@ OCCLUSION_PAGE = """<!DOCTYPE html><html><head><meta charset="utf-8">
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 import { NeurasNeuralMaterial } from "./neuras-three.js";
-const order = Number(new URLSearchParams(location.search).get("order"));
+const query = new URLSearchParams(location.search), order = Number(query.get("order"));
 const gltf = await new GLTFLoader().register((p) => new NeurasNeuralMaterial(p)).loadAsync("scene.glb");
 const scene = new THREE.Scene();
 scene.add(gltf.scene);
@@ -310,8 +311,9 @@ const plane = new THREE.Mesh(new THREE.PlaneGeometry(size * 4, size * 4),
 plane.position.copy(centre);                    // through the middle, facing the camera
 plane.lookAt(camera.position);
 plane.renderOrder = order;
-scene.add(plane);
+if (query.has("order")) scene.add(plane);
 const renderer = new THREE.WebGLRenderer({ canvas: document.getElementById("view"), preserveDrawingBuffer: true });
+if (query.has("linear")) renderer.outputColorSpace = THREE.LinearSRGBColorSpace;
 renderer.setPixelRatio(1);
 renderer.setSize(160, 120);
 renderer.render(scene, camera);
@@ -343,3 +345,20 @@ def test_the_page_shows_the_bundle_beside_a_grid(runs, page, browser):
     assert browser.execute_script("return window.neurasError || null;") is None
     assert "skyboxes" in browser.execute_script("return document.getElementById('label').textContent;")
     assert got.std() > 5.0
+
+
+@needs_gl
+def test_a_linear_output_colour_space_gets_linear_values(runs, page, browser):
+    """renderer.outputColorSpace = LinearSRGBColorSpace: the plugin writes the decoded (linear) values where the
+    default sRGB output gets the display values, as three.js's own materials do."""
+    export, root = page
+    url = export("single", "three-colour")
+    (root / "three-colour" / "colour.html").write_text(OCCLUSION_PAGE)
+    display = _play(browser, f"{url}/colour.html").astype(np.float64) / 255.0
+    linear = _play(browser, f"{url}/colour.html?linear").astype(np.float64) / 255.0
+    decoded = np.where(display <= 0.04045, display / 12.92, ((display + 0.055) / 1.055) ** 2.4)
+    on_mesh = np.abs(display - decoded).max(-1) > 0.02
+    print(f"linear output: {psnr(linear * 255, decoded * 255):.2f} dB against the decoded display values")
+    assert on_mesh.mean() > 0.02 and psnr(linear * 255, decoded * 255) >= 40.0
+    assert psnr(linear * 255, display * 255) < 30.0
+
