@@ -20,6 +20,7 @@ import torch
 from neuras_distill.config import TrainConfig
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.train import fit
+from neuras_distill.neural.train_batches import TrainingPixels
 from neuras_distill.pipeline.parallel import RenderPool
 from neuras_distill.scenes.analytic import SphereSDF
 
@@ -57,9 +58,9 @@ def main() -> None:
                 model = NeuralTextureModel(512, 512, feature_dim=8, num_codes=256)
                 kwargs = dict(steps=args.steps, config=TrainConfig(batch_patches=batch, patch=16), progress=False)
                 if nproc == 1:
-                    log = fit(model, *data, num_threads=os.cpu_count(), **kwargs)
+                    log = fit(model, TrainingPixels(*data), num_threads=os.cpu_count(), **kwargs)
                 else:
-                    log = pool.fit(model, *data, **kwargs)
+                    log = pool.fit(model, TrainingPixels(*data), **kwargs)
                 print(f"{batch:>8} {nproc:>5} {log.steps_per_second:>8.1f} {log.pixels_per_second_per_process:>10.0f} "
                       f"{log.entries[-1]['psnr']:>10.2f}")
 

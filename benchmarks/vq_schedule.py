@@ -61,6 +61,7 @@ def score(variant: str, side: int, data, args) -> dict:
     from neuras_distill.neural.model import NeuralTextureModel
     from neuras_distill.config import TrainConfig
     from neuras_distill.neural.train import fit
+    from neuras_distill.neural.train_batches import TrainingPixels
 
     (gb_train, gb_test, dirs_train, dirs_test), targets, test_images, bg = data
     torch.manual_seed(0)
@@ -68,7 +69,7 @@ def score(variant: str, side: int, data, args) -> dict:
     warmup = float(variant.split("@", 1)[1]) if use_vq else 1.0
     model = NeuralTextureModel(side, side, feature_dim=8, num_codes=1024, hidden=16, num_layers=2, use_vq=use_vq)
     t0 = time.perf_counter()
-    fit(model, gb_train.uv, gb_train.coverage, dirs_train, targets, steps=args.steps,
+    fit(model, TrainingPixels(gb_train.uv, gb_train.coverage, dirs_train, targets), steps=args.steps,
         config=TrainConfig(vq_warmup=warmup, ssim_weight=args.ssim_weight), progress=False, num_threads=args.threads)
     seconds = time.perf_counter() - t0
     psnrs = [psnr(model.render_gbuffer(gb_test.uv[i], gb_test.coverage[i], dirs_test[i], bg), test_images[i])

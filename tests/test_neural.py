@@ -14,6 +14,7 @@ from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.shader import MLPShader
 from neuras_distill.neural.texture import NeuralTexture, bilinear_corners
 from neuras_distill.neural.train import fit
+from neuras_distill.neural.train_batches import TrainingPixels
 from neuras_distill.neural.vq import VectorQuantizer
 
 
@@ -342,7 +343,7 @@ def test_fit_reaches_psnr_on_smooth_target():
     data = synthetic_gbuffer()
     model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=256, use_vq=True)
     start = _psnr(model, *data)
-    log = fit(model, *data, steps=250, config=TrainConfig(batch_patches=8, patch=16, vq_warmup=0.15),
+    log = fit(model, TrainingPixels(*data), steps=250, config=TrainConfig(batch_patches=8, patch=16, vq_warmup=0.15),
               progress=False, log_every=25, num_threads=1)
     end = _psnr(model, *data)
     assert start < 20 and end > 30, (start, end)
@@ -364,7 +365,7 @@ def test_fit_quantizes_after_training_by_default():
         torch.manual_seed(0)
         data = synthetic_gbuffer()
         model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True, quantize_above=0)
-        log = fit(model, *data, steps=250, config=TrainConfig(batch_patches=8, patch=16, **kwargs), progress=False,
+        log = fit(model, TrainingPixels(*data), steps=250, config=TrainConfig(batch_patches=8, patch=16, **kwargs), progress=False,
                   num_threads=1)
         return model, log, _psnr(model, *data)
 
@@ -380,7 +381,7 @@ def test_fit_keeps_the_texels_exact_when_they_fit_the_index():
     baked codebook is the texels' own features (the index and codebook give back every texel exactly)."""
     data = synthetic_gbuffer()
     exact = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True)
-    log = fit(exact, *data, steps=60, config=TrainConfig(batch_patches=8, patch=16), progress=False, num_threads=1)
+    log = fit(exact, TrainingPixels(*data), steps=60, config=TrainConfig(batch_patches=8, patch=16), progress=False, num_threads=1)
     touched = int(exact.touched.sum())
     assert 64 < touched <= 1024 and log.exact_codes and log.vq_start_step is None and not exact.quantizing
     index, codebook = exact.baked_features()
@@ -388,7 +389,7 @@ def test_fit_keeps_the_texels_exact_when_they_fit_the_index():
     np.testing.assert_array_equal(codebook[index.reshape(-1)], exact.texture.flat.detach().numpy())
 
     capped = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=True, quantize_above=touched - 1)
-    log = fit(capped, *data, steps=60, config=TrainConfig(batch_patches=8, patch=16), progress=False, num_threads=1)
+    log = fit(capped, TrainingPixels(*data), steps=60, config=TrainConfig(batch_patches=8, patch=16), progress=False, num_threads=1)
     assert capped.quantizing and not log.exact_codes and log.vq_start_step == 60
     assert capped.baked_features()[1].shape[0] <= 64
 
@@ -410,7 +411,7 @@ def test_fit_stops_on_a_plateau_of_held_back_pixels_it_never_trains_on():
     torch.manual_seed(0)
     model = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64)
     stop = PlateauStop(hold_back_every=16, check_every=50, patience=4, min_gain_db=0.05, min_progress=0.1)
-    log = fit(model, uv, cov, dirs, tgt, steps=8000, config=TrainConfig(batch_patches=8, patch=8), progress=False,
+    log = fit(model, TrainingPixels(uv, cov, dirs, tgt), steps=8000, config=TrainConfig(batch_patches=8, patch=8), progress=False,
               num_threads=1, stop=stop)
     assert log.stopped_by == "plateau" and 0.1 * 8000 <= log.steps < 8000, log.steps
     assert len(log.held_back) == log.steps // 50 and log.held_back[-1][1] > 30.0, log.held_back[-3:]
@@ -422,28 +423,28 @@ def test_fit_stops_on_a_plateau_of_held_back_pixels_it_never_trains_on():
     small = TrainConfig(batch_patches=8, patch=8)
     torch.manual_seed(0)
     a = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=False)
-    fit(a, uv, cov, dirs, tgt, steps=200, config=small, progress=False, num_threads=1, stop=kept)
+    fit(a, TrainingPixels(uv, cov, dirs, tgt), steps=200, config=small, progress=False, num_threads=1, stop=kept)
     masked = cov.copy()
     masked.reshape(-1)[kept.held.numpy()] = False
     torch.manual_seed(0)
     b = NeuralTextureModel(32, 32, feature_dim=8, num_codes=64, use_vq=False)
-    fit(b, uv, masked, dirs, tgt, steps=200, config=small, progress=False, num_threads=1)
+    fit(b, TrainingPixels(uv, masked, dirs, tgt), steps=200, config=small, progress=False, num_threads=1)
     assert all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), b.state_dict().values()))
     with pytest.raises(BadInputError, match="one process"):
-        fit(model, uv, cov, dirs, tgt, steps=10, progress=False, stop=PlateauStop(), exchange=object())
+        fit(model, TrainingPixels(uv, cov, dirs, tgt), steps=10, progress=False, stop=PlateauStop(), exchange=object())
 
 
 def test_fit_time_budget_and_bad_input():
     data = synthetic_gbuffer(n=1, res=16)
     model = NeuralTextureModel(16, 16, feature_dim=4, num_codes=16, quantize_above=0)
-    log = fit(model, *data, steps=100000, time_budget_s=0.5, config=TrainConfig(batch_patches=2), progress=False,
+    log = fit(model, TrainingPixels(*data), steps=100000, time_budget_s=0.5, config=TrainConfig(batch_patches=2), progress=False,
               num_threads=1)
     assert log.stopped_by == "time_budget" and log.steps < 100000 and model.quantizing
     uv, cov, dirs, tgt = data
     with pytest.raises(BadInputError):
-        fit(model, uv, np.zeros_like(cov), dirs, tgt, steps=3, progress=False)
+        fit(model, TrainingPixels(uv, np.zeros_like(cov), dirs, tgt), steps=3, progress=False)
     with pytest.raises(BadInputError):
-        fit(model, uv[..., :1], cov, dirs, tgt, steps=3, progress=False)
+        fit(model, TrainingPixels(uv[..., :1], cov, dirs, tgt), steps=3, progress=False)
 
 
 def test_playing_a_trained_model_quantizes_each_texel_once_and_matches_the_training_path():

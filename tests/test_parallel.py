@@ -134,6 +134,7 @@ def _trained_together(nproc: int, coarse_factor: int = 1, **kwargs):
     from neuras_distill.neural.model import NeuralTextureModel
     from neuras_distill.config import TrainConfig
     from neuras_distill.neural.train import fit
+    from neuras_distill.neural.train_batches import TrainingPixels
 
     data = synthetic_gbuffer(n=3, res=24)
     torch.manual_seed(0)
@@ -142,10 +143,10 @@ def _trained_together(nproc: int, coarse_factor: int = 1, **kwargs):
     start = {k: v.clone() for k, v in model.state_dict().items()}
     args = dict(steps=30, config=TrainConfig(batch_patches=6, patch=8, **kwargs), progress=False)
     if nproc == 1:
-        log = fit(model, *data, num_threads=1, **args)
+        log = fit(model, TrainingPixels(*data), num_threads=1, **args)
     else:
         with RenderPool(SphereSDF(radius=0.5), nproc, timeout_s=120) as pool:
-            log = pool.fit(model, *data, **args)
+            log = pool.fit(model, TrainingPixels(*data), **args)
     return model, log, start
 
 

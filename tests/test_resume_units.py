@@ -14,6 +14,7 @@ from neuras_distill.config import TrainConfig
 from neuras_distill.errors import BadInputError
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.train import fit
+from neuras_distill.neural.train_batches import TrainingPixels
 from neuras_distill.neural.train_checkpoint import TrainCheckpoint
 from neuras_distill.pipeline.cache import StageCache, digest, field_fingerprint, load_arrays, save_arrays
 from neuras_distill.pipeline.rundir import MARKER, RunFolder
@@ -50,16 +51,16 @@ def test_training_resumed_from_a_checkpoint_ends_bit_identical(tmp_path):
     data = synthetic_gbuffer(n=2, res=16)
     kwargs = dict(steps=60, config=TrainConfig(batch_patches=2, patch=8, seed=3), progress=False, num_threads=1)
     whole = _model()
-    log_whole = fit(whole, *data, **kwargs)
+    log_whole = fit(whole, TrainingPixels(*data), **kwargs)
 
     path = tmp_path / "ckpt.pt"
     killed = _model()
     with pytest.raises(_Killed):
-        fit(killed, *data, checkpoint=_KillAfterSaving(path, "k", at=25), **kwargs)
+        fit(killed, TrainingPixels(*data), checkpoint=_KillAfterSaving(path, "k", at=25), **kwargs)
     assert path.is_file() and not list(tmp_path.glob(".*tmp*"))       # written atomically
 
     resumed = _model()                       # a new process: a fresh model, same constructor
-    log = fit(resumed, *data, checkpoint=TrainCheckpoint(path, "k", every_s=1e9), **kwargs)
+    log = fit(resumed, TrainingPixels(*data), checkpoint=TrainCheckpoint(path, "k", every_s=1e9), **kwargs)
     assert log.resumed_from_step == 25 and log.steps == 60 and log_whole.resumed_from_step is None
     assert [e["step"] for e in log.entries] == [e["step"] for e in log_whole.entries]
     for (name, a), b in zip(whole.state_dict().items(), resumed.state_dict().values()):
@@ -70,13 +71,13 @@ def test_a_checkpoint_of_other_settings_or_a_corrupt_one_is_not_resumed(tmp_path
     data = synthetic_gbuffer(n=1, res=16)
     path = tmp_path / "ckpt.pt"
     with pytest.raises(_Killed):
-        fit(_model(), *data, steps=20, config=SMALL, progress=False, checkpoint=_KillAfterSaving(path, "a", 5))
+        fit(_model(), TrainingPixels(*data), steps=20, config=SMALL, progress=False, checkpoint=_KillAfterSaving(path, "a", 5))
     lines = []
-    log = fit(_model(), *data, steps=20, config=SMALL, progress=False,
+    log = fit(_model(), TrainingPixels(*data), steps=20, config=SMALL, progress=False,
               checkpoint=TrainCheckpoint(path, "b", every_s=1e9, log=lines.append))
     assert log.resumed_from_step is None and "other inputs or settings" in lines[0]
     path.write_bytes(b"PK\x03\x04 not a checkpoint")
-    log = fit(_model(), *data, steps=20, config=SMALL, progress=False,
+    log = fit(_model(), TrainingPixels(*data), steps=20, config=SMALL, progress=False,
               checkpoint=TrainCheckpoint(path, "b", every_s=1e9, log=lines.append))
     assert log.resumed_from_step is None and "unreadable" in lines[1] and not path.exists()
 

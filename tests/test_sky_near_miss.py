@@ -11,6 +11,7 @@ from neuras_distill.config import TrainConfig
 from neuras_distill.neural.model import NeuralTextureModel
 from neuras_distill.neural.skybox import SkyboxLayers, SkyboxModel
 from neuras_distill.neural.train import fit
+from neuras_distill.neural.train_batches import TrainingPixels
 from neuras_distill.pipeline.rules import near_miss_pixels
 
 
@@ -67,8 +68,9 @@ def _train_sky(sky_pixels):
     targets[0, 4:10, 6:9] = (0.9, 0.1, 0.1)                     # a lamp the mesh missed, next to it
     uv = np.full((1, h, w, 2), 0.5, np.float32)
     dirs = d[..., :model.view_columns] if model.view_columns else d[..., :0]
-    fit(model, uv, coverage, dirs.numpy(), targets, steps=300, config=TrainConfig(batch_patches=4, patch=8),
-        progress=False, skybox=sky, origins=np.zeros((1, 3), np.float32), sky_pixels=sky_pixels)
+    fit(model, TrainingPixels(uv, coverage, dirs.numpy(), targets, origins=np.zeros((1, 3), np.float32),
+                              sky_pixels=sky_pixels),
+        steps=300, config=TrainConfig(batch_patches=4, patch=8), progress=False, skybox=sky)
     with torch.no_grad():
         rgb, _ = sky(torch.zeros(18, 3), d[0, 4:10, 6:9].reshape(-1, 3))
     return rgb

@@ -350,6 +350,7 @@ def test_a_shader_per_layer_picks_by_the_layer_column():
 
     from neuras_distill.neural.model import view_inputs
     from neuras_distill.neural.train import fit
+    from neuras_distill.neural.train_batches import TrainingPixels
 
     normals = np.float32([[[0, 0, 1], [0, 0, 1], [0, 1, 0], [1, 0, 0]]])      # per pixel (GBuffer.normal)
     dirs = np.float32([[[0, 0, -1], [0, 0, -1], [0, 0, -1], [0, 0, -1]]])
@@ -389,8 +390,8 @@ def test_a_shader_per_layer_picks_by_the_layer_column():
     layer = np.zeros((1, h, w, 1), np.float32)
     layer[:, :, w // 2:] = 1.0
     view = np.concatenate([np.tile(np.float32([0, 0, -1, 1]), (1, h, w, 1)), layer], axis=-1)
-    fit(m, gen.random((1, h, w, 2), dtype=np.float32), np.ones((1, h, w), bool), view,
-        gen.random((1, h, w, 3), dtype=np.float32), steps=3, config=TrainConfig(batch_patches=2, patch=4),
+    fit(m, TrainingPixels(gen.random((1, h, w, 2), dtype=np.float32), np.ones((1, h, w), bool), view,
+                          gen.random((1, h, w, 3), dtype=np.float32)), steps=3, config=TrainConfig(batch_patches=2, patch=4),
         progress=False)
     assert any((p - q).abs().max() > 0 for p, q in zip(m.shaders[1].parameters(), before))
 

@@ -14,7 +14,7 @@ import math
 
 import torch
 
-from neuras_distill.neural.train_batches import TrainingPixels
+from neuras_distill.neural.train_batches import PixelRows
 
 
 class PlateauStop:
@@ -28,7 +28,7 @@ class PlateauStop:
         self.held: torch.Tensor | None = None
         self.history: list[tuple[int, float]] = []
 
-    def hold_back(self, pixels: TrainingPixels) -> None:
+    def hold_back(self, pixels: PixelRows) -> None:
         """Take the held-back pixels out of ``pixels`` (in place): out of the loss (``covered`` and the sky's
         ``allowed`` set to False) and off the patch centres. At most ``max_pixels`` are kept for scoring."""
         learnt = pixels.covered if pixels.sky is None else pixels.covered | pixels.sky.allowed
@@ -47,7 +47,7 @@ class PlateauStop:
         pixels.centres = pixels.centres[keep[pixels.centres]]
 
     @torch.no_grad()
-    def psnr(self, model, skybox, pixels: TrainingPixels, models: list) -> float:
+    def psnr(self, model, skybox, pixels: PixelRows, models: list) -> float:
         """PSNR in dB of the model's (and skybox's) colours of the held-back pixels against the teacher's, in eval
         mode; ``models`` (the modules recording touched texels) record nothing meanwhile."""
         device = model.texture.data.device
@@ -73,7 +73,7 @@ class PlateauStop:
         mse = float(torch.mean((rgb.cpu() - pixels.targets[idx]) ** 2))
         return -10.0 * math.log10(max(mse, 1e-10))
 
-    def plateau(self, step: int, steps: int, model, skybox, pixels: TrainingPixels, models: list) -> bool:
+    def plateau(self, step: int, steps: int, model, skybox, pixels: PixelRows, models: list) -> bool:
         """At every ``check_every``-th step: score the held-back pixels (:meth:`psnr`) and :meth:`record` it;
         True when training should stop."""
         if self.held is None or self.held.numel() == 0 or step % self.check_every:

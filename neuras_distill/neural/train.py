@@ -50,7 +50,7 @@ from neuras_distill.errors import BadInputError, require
 from neuras_distill.neural.convergence import PlateauStop
 from neuras_distill.neural.data_parallel import GradientExchange
 from neuras_distill.neural.model import NeuralTextureModel
-from neuras_distill.neural.train_batches import TrainingPixels
+from neuras_distill.neural.train_batches import PixelRows, TrainingPixels
 from neuras_distill.neural.train_step import BatchLoss, Optimisers
 
 #: The library's defaults are the configuration's (one place: ``config.py``).
@@ -96,25 +96,23 @@ class TrainLog:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, config: TrainConfig = _TRAIN,
-        time_budget_s: float | None = None, skybox=None, origins=None, sky_pixels=None, checkpoint=None,
-        device: torch.device | str | None = None, exchange: GradientExchange | None = None, progress: bool = True,
-        log_every: int | None = None, num_threads: int | None = None, stop: PlateauStop | None = None) -> TrainLog:
+def fit(model: NeuralTextureModel, views: TrainingPixels, *, steps: int, config: TrainConfig = _TRAIN,
+        time_budget_s: float | None = None, skybox=None, checkpoint=None, device: torch.device | str | None = None,
+        exchange: GradientExchange | None = None, progress: bool = True, log_every: int | None = None,
+        num_threads: int | None = None, stop: PlateauStop | None = None) -> TrainLog:
     """Train ``model`` on teacher images.
 
     Args:
-        uv: (N, H, W, 2) float32 G-buffer texture coordinates; coverage: (N, H, W) bool;
-        dirs: (N, H, W, C) float32 view inputs, C = ``model.view_columns`` (unit directions, the facing cosine
-            when the shader uses it, the mesh layer with two layers: ``neural.model.view_inputs``);
-            targets: (N, H, W, 3) float32 teacher colours.
+        views: the :class:`~neuras_distill.neural.train_batches.TrainingPixels` learnt from: per view the uv,
+            coverage, view inputs (unit directions, the facing cosine when the shader uses it, the mesh layer with
+            two layers: ``neural.model.view_inputs``) and teacher colours; with a ``skybox``, the camera centres
+            relative to ``skybox.layers.center`` (required) and the uncovered pixels it learns from
+            (``pipeline.rules.near_miss_pixels``: the field shows a surface there that the mesh missed, which the
+            skybox must not smear over the sky).
         steps: maximum optimisation steps; time_budget_s: optional wall-clock limit (whichever comes first).
         config: the :class:`TrainConfig` section (lr, texture_lr_scale, batch_patches, patch, ssim_weight,
             vq_warmup, seed; the rest is the pipeline's).
         skybox: optional :class:`SkyboxModel` trained jointly on the pixels the mesh does not cover.
-        origins: (N, 3) float32 camera centres relative to ``skybox.layers.center`` (required with skybox).
-        sky_pixels: optional (N, H, W) bool, the uncovered pixels the skybox learns from (default: all of them);
-            an uncovered pixel outside it is left out of the loss (``pipeline.rules.near_miss_pixels``: the
-            field shows a surface there that the mesh missed, which the skybox must not smear over the sky).
         checkpoint: optional :class:`neural.train_checkpoint.TrainCheckpoint`: the loop starts from its stored
             state when it has one (``TrainLog.resumed_from_step``) and saves its state when it is due.
         device: where the model (and skybox) train (None: where the model is); the arrays stay in host memory.
@@ -130,8 +128,7 @@ def fit(model: NeuralTextureModel, uv, coverage, dirs, targets, *, steps: int, c
     """
     if steps < 1:
         raise BadInputError(f"fit: steps must be >= 1, got {steps}")
-    pixels = TrainingPixels.of(uv, coverage, dirs, targets, model.view_columns, skybox is not None, origins,
-                               sky_pixels)
+    pixels = views.rows(model.view_columns, skybox is not None)
     device = torch.device(device) if device is not None else model.texture.data.device
     models = _place(model, skybox, pixels, device, stop, exchange)
     batch_loss, opts = BatchLoss(model, skybox, pixels, config, device, exchange), Optimisers(model, skybox, config)
@@ -197,7 +194,7 @@ def _gather_touched(models: list, exchange: GradientExchange) -> bool:
     return exchange.rank == 0
 
 
-def _place(model: NeuralTextureModel, skybox, pixels: TrainingPixels, device: torch.device,
+def _place(model: NeuralTextureModel, skybox, pixels: PixelRows, device: torch.device,
            stop: PlateauStop | None, exchange: GradientExchange | None) -> list:
     """Move the model (and skybox, and the camera centres) to ``device`` in training mode, recording touched
     texels, and hold back ``stop``'s pixels; returns the modules with an atlas: [model] or [model, skybox.atlas]."""
@@ -271,7 +268,7 @@ def _log_step(log: TrainLog, bar, model: NeuralTextureModel, step: int, clock: _
 
 
 def _finish(log: TrainLog, model: NeuralTextureModel, skybox, models: list, clock: _Clock, config: TrainConfig,
-            pixels: TrainingPixels, exchange: GradientExchange | None, checkpoint) -> None:
+            pixels: PixelRows, exchange: GradientExchange | None, checkpoint) -> None:
     """After the loop, on rank 0: the log's speed figures; the model (and skybox) back on the host, quantized
     when it was not yet, untouched texels filled, in eval mode."""
     log.steps_per_second = (log.steps - (log.resumed_from_step or 0)) / max(log.seconds - clock.resumed, 1e-9)

@@ -1,7 +1,8 @@
 """The pixels :func:`neuras_distill.neural.train.fit` learns from, and the batches of patches it draws.
 
-Owns: :class:`TrainingPixels` (the training views' G-buffers and teacher colours, checked and flattened to one
-row per pixel, in host memory), :class:`SkyPixels` (what the skybox learns from) and :class:`BatchCounts`.
+Owns: :class:`TrainingPixels` (what ``fit`` is given: the training views' G-buffers and teacher colours, per
+view), :class:`PixelRows` (the same checked and flattened to one row per pixel, in host memory),
+:class:`SkyPixels` (what the skybox learns from) and :class:`BatchCounts`.
 
 A batch is ``batch_patches`` square patches of side ``p`` centred on random pixels (covered pixels without a
 skybox, any pixel with one) of random views, clamped into the image. Pixels are numbered
@@ -28,10 +29,32 @@ def _as_tensor(x, dtype, name: str, shape_tail: tuple, lead: tuple | None = None
     return t.to(dtype)
 
 
+@dataclass(frozen=True)
+class TrainingPixels:
+    """The training views as ``fit`` learns from them: ``uv`` (N, H, W, 2) float32 G-buffer texture coordinates,
+    ``coverage`` (N, H, W) bool (the mesh covers the pixel), ``dirs`` (N, H, W, C) float32 view inputs
+    (C = ``model.view_columns``: ``neural.model.view_inputs``), ``targets`` (N, H, W, 3) float32 teacher colours;
+    for a skybox trained with them, ``origins`` (N, 3) float32 camera centres relative to the skybox's centre and
+    the optional ``sky_pixels`` (N, H, W) bool, the uncovered pixels it learns from (default: all of them; an
+    uncovered pixel outside it is left out of the loss). numpy arrays or tensors, in host memory."""
+
+    uv: object
+    coverage: object
+    dirs: object
+    targets: object
+    origins: object = None
+    sky_pixels: object = None
+
+    def rows(self, view_columns: int, with_sky: bool = False) -> "PixelRows":
+        """:meth:`PixelRows.of` these views."""
+        return PixelRows.of(self.uv, self.coverage, self.dirs, self.targets, view_columns, with_sky, self.origins,
+                            self.sky_pixels)
+
+
 @dataclass
 class SkyPixels:
     """What the skybox learns from: ``origins`` (N, 3) float32 camera centres relative to the skybox's centre
-    (on the training device once :meth:`TrainingPixels.to` ran) and ``allowed`` (N*H*W,) bool, the pixels the
+    (on the training device once :meth:`PixelRows.to` ran) and ``allowed`` (N*H*W,) bool, the pixels the
     mesh does not cover that the skybox may learn (the others are left out of the loss)."""
 
     origins: torch.Tensor
@@ -55,7 +78,7 @@ class BatchCounts:
 
 
 @dataclass
-class TrainingPixels:
+class PixelRows:
     """The training views, one row per pixel: ``uv`` (P, 2) float32 atlas coordinates, ``dirs`` (P, C) float32
     view inputs, ``targets`` (P, 3) float32 teacher colours, ``covered`` (P,) bool (the mesh covers the pixel),
     with P = N*H*W; ``centres`` (K,) int64, the pixels a patch may be centred on; ``sky`` the skybox's pixels
@@ -71,7 +94,7 @@ class TrainingPixels:
 
     @classmethod
     def of(cls, uv, coverage, dirs, targets, view_columns: int, with_sky: bool = False, origins=None,
-           sky_pixels=None) -> TrainingPixels:
+           sky_pixels=None) -> PixelRows:
         """Check and flatten ``fit``'s arrays: uv (N, H, W, 2), coverage (N, H, W) bool, dirs (N, H, W,
         ``view_columns``), targets (N, H, W, 3); with a skybox (``with_sky``) also origins (N, 3) and the optional
         sky_pixels (N, H, W) bool (default: every uncovered pixel). Raises BadInputError naming the bad one."""

@@ -17,7 +17,7 @@ import torch
 from neuras_distill.config import TrainConfig
 from neuras_distill.neural.losses import ssim
 from neuras_distill.neural.model import NeuralTextureModel
-from neuras_distill.neural.train_batches import TrainingPixels
+from neuras_distill.neural.train_batches import PixelRows
 
 #: Weight of the quantizer's commitment / codebook loss while training under quantization.
 VQ_WEIGHT = 1.0
@@ -28,7 +28,7 @@ LR_FINAL_RATIO = 0.1
 class BatchLoss:
     """The loss of one batch for ``model`` (and ``skybox``) on ``pixels``, computed on ``device``."""
 
-    def __init__(self, model: NeuralTextureModel, skybox, pixels: TrainingPixels, config: TrainConfig,
+    def __init__(self, model: NeuralTextureModel, skybox, pixels: PixelRows, config: TrainConfig,
                  device: torch.device, exchange=None) -> None:
         self.model, self.skybox, self.pixels, self.device, self.exchange = model, skybox, pixels, device, exchange
         self.batch_patches = config.batch_patches

@@ -136,11 +136,11 @@ def _fit_share(payload: FitPayload, rank: int, world: int) -> float:
 
     from ..neural.data_parallel import GradientExchange
     from ..neural.train import fit
+    from ..neural.train_batches import TrainingPixels
 
     t0 = time.perf_counter()
     a = payload.arrays
-    fit(payload.model, a["uv"], a["coverage"], a["dirs"], a["targets"], skybox=payload.skybox,
-        origins=a.get("origins"), sky_pixels=a.get("sky_pixels"), progress=False,
+    fit(payload.model, TrainingPixels(**a), skybox=payload.skybox, progress=False,
         checkpoint=_StoredState(payload.stored) if payload.stored is not None else None,
         exchange=GradientExchange(rank, world), **payload.kwargs)
     return time.perf_counter() - t0
@@ -310,8 +310,7 @@ class RenderPool:
             progress(len(cameras), len(cameras))
         return renders
 
-    def fit(self, model, uv, coverage, dirs, targets, *, skybox=None, origins=None, sky_pixels=None,
-            checkpoint=None, progress: bool = True, **kwargs):
+    def fit(self, model, views, *, skybox=None, checkpoint=None, progress: bool = True, **kwargs):
         """:func:`neuras_distill.neural.train.fit` on every rank at once, each computing its share of every
         batch (the arguments are ``fit``'s; the G-buffers and targets stay on the CPU). Returns rank 0's
         ``TrainLog``; ``model`` and ``skybox`` are trained in place as by ``fit``."""
@@ -325,11 +324,8 @@ class RenderPool:
         kwargs["num_threads"] = self.threads
         require(kwargs.get("device") in (None, "cpu") or torch.device(kwargs["device"]).type == "cpu",
                 f"--nproc {self.nproc} trains on CPU processes; on {kwargs.get('device')} use --nproc 1")
-        arrays = {"uv": uv, "coverage": coverage, "dirs": dirs, "targets": targets}
-        if origins is not None:
-            arrays["origins"] = origins
-        if sky_pixels is not None:
-            arrays["sky_pixels"] = sky_pixels
+        arrays = {name: getattr(views, name) for name in ("uv", "coverage", "dirs", "targets", "origins", "sky_pixels")
+                  if getattr(views, name) is not None}
         shared = {k: _shared_tensor(v) for k, v in arrays.items()}
         stored = checkpoint.load() if checkpoint is not None else None
         try:
@@ -341,8 +337,8 @@ class RenderPool:
                     queue.put(FitPayload(copy.deepcopy(model), copy.deepcopy(skybox), shared, kwargs, stored))
                 self._dist.broadcast_object_list([FitRequest()], src=0)
             t0 = time.perf_counter()
-            log = fit(model, uv, coverage, dirs, targets, skybox=skybox, origins=origins, sky_pixels=sky_pixels,
-                      checkpoint=checkpoint, progress=progress, exchange=GradientExchange(0, self.nproc), **kwargs)
+            log = fit(model, views, skybox=skybox, checkpoint=checkpoint, progress=progress,
+                      exchange=GradientExchange(0, self.nproc), **kwargs)
             seconds = [None] * self.nproc
             self._dist.gather_object(time.perf_counter() - t0, seconds, dst=0)
         except RuntimeError as exc:

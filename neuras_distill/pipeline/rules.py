@@ -314,6 +314,7 @@ def probe_training_speed(texture: TextureConfig, train: TrainConfig, steps: int 
     skyboxes train a little slower than probed). The fastest of :data:`PROBE_SEGMENTS` timed segments counts."""
     from ..neural.model import NeuralTextureModel
     from ..neural.train import fit
+    from ..neural.train_batches import TrainingPixels
 
     gen = torch.Generator().manual_seed(0)
     n, h, w = 2, 4 * train.patch, 4 * train.patch
@@ -324,8 +325,8 @@ def probe_training_speed(texture: TextureConfig, train: TrainConfig, steps: int 
     dirs = torch.nn.functional.normalize(torch.randn(n, h, w, 3, generator=gen), dim=-1)
     data = (uv, torch.ones(n, h, w, dtype=torch.bool), dirs, torch.rand(n, h, w, 3, generator=gen))
     config = TrainConfig(batch_patches=train.batch_patches, patch=train.patch)   # the batch's size, nothing else
-    fit(model, *data, steps=20, config=config, progress=False, device=device)
-    rates = [fit(model, *data, steps=max(1, steps // PROBE_SEGMENTS), config=config,
+    fit(model, TrainingPixels(*data), steps=20, config=config, progress=False, device=device)
+    rates = [fit(model, TrainingPixels(*data), steps=max(1, steps // PROBE_SEGMENTS), config=config,
                  progress=False, device=device).steps_per_second for _ in range(PROBE_SEGMENTS)]
     return float(max(rates))
 

@@ -7,6 +7,7 @@ from ...geometry.unwrap import atlas_shape
 from ...neural.model import NeuralTextureModel
 from ...neural.shader_inputs import ShaderInputs
 from ...neural.train import fit
+from ...neural.train_batches import TrainingPixels
 from ...neural.train_checkpoint import TrainCheckpoint
 from .. import choices
 from ..cache import digest
@@ -50,9 +51,10 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
     def train() -> TrainedModel:
         gb = training.gbuffer
         train_fn = fit if ctx.pool is None else ctx.pool.fit      # --nproc N: data-parallel over the workers
-        log = train_fn(model, gb.uv, gb.coverage, training.dirs, teacher.images, steps=plan.steps, config=cfg.train,
-                       time_budget_s=training_seconds(ctx, plan), skybox=skybox, origins=backdrop.sky_origins,
-                       sky_pixels=backdrop.sky_pixels, checkpoint=checkpoint, device=ctx.device, progress=ctx.progress,
+        views = TrainingPixels(gb.uv, gb.coverage, training.dirs, teacher.images, origins=backdrop.sky_origins,
+                               sky_pixels=backdrop.sky_pixels)
+        log = train_fn(model, views, steps=plan.steps, config=cfg.train, time_budget_s=training_seconds(ctx, plan),
+                       skybox=skybox, checkpoint=checkpoint, device=ctx.device, progress=ctx.progress,
                        stop=plateau_stop(ctx, plan))
         if log.resumed_from_step:
             ctx.log(f"distill: continued from the checkpoint at step {log.resumed_from_step}")
