@@ -26,15 +26,13 @@ version is accepted, and its version is printed.
 from __future__ import annotations
 
 import json
-import os
 import re
-import shutil
-import time
 from importlib import resources
 from pathlib import Path
 
 from .. import __version__
 from ..errors import BadInputError
+from .folder_output import check_replaceable, write_folder
 from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, checked_limit
 
 MARKER = ".neuras-distill-threejs"
@@ -113,29 +111,11 @@ def export_threejs(bundle_path, out, three_dir, max_texture_size: int = DEFAULT_
     name and renames it into place (an existing ``out`` is replaced only when it carries our marker): on any
     error nothing is left behind. Returns (``out``, the three.js version)."""
     src, out, three_dir = Path(bundle_path), Path(out), Path(three_dir)
-    if out.exists() or out.is_symlink():
-        if not out.is_dir() or out.is_symlink() or not (out / MARKER).is_file():
-            raise BadInputError(f"output {out} exists and is not a three.js folder written by neuras-distill; "
-                                "choose another --out or remove it")
+    check_replaceable(out, MARKER, "three.js folder")
     if not src.exists():
         raise BadInputError(f"bundle {src} does not exist")
     files = three_files(src, three_dir, max_texture_size)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stamp = f"{os.getpid()}-{int(time.time() * 1000)}"
-    tmp, old = out.parent / f".{out.name}.tmp-{stamp}", out.parent / f".{out.name}.old-{stamp}"
-    try:
-        for name, data in files.items():
-            path = tmp / name
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(data)
-        if out.exists():
-            os.replace(out, old)
-        os.replace(tmp, out)
-    finally:
-        for leftover in (tmp, old):
-            if leftover.exists():
-                shutil.rmtree(leftover)
-    return out, json.loads(files[MARKER])["three"]
+    return write_folder(out, files), json.loads(files[MARKER])["three"]
 
 
 __all__ = ["MARKER", "THREE_ENTRIES", "export_threejs", "three_files", "three_modules", "three_version"]

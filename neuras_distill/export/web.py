@@ -45,14 +45,12 @@ from __future__ import annotations
 
 import base64
 import json
-import os
-import shutil
-import time
 from importlib import resources
 from pathlib import Path
 
 from .. import __version__
 from ..errors import BadInputError
+from .folder_output import check_replaceable, write_folder
 from .playable import playable_bundle
 from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, checked_limit
 
@@ -155,30 +153,11 @@ def export_web(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZ
 
     src, out = Path(bundle_path), Path(out)
     limit = checked_limit(max_texture_size)
-    if out.exists() or out.is_symlink():
-        if not out.is_dir() or out.is_symlink() or not (out / MARKER).is_file():
-            raise BadInputError(f"output {out} exists and is not a web folder written by neuras-distill; "
-                                "choose another --out or remove it")
+    check_replaceable(out, MARKER, "web folder")
     if not src.exists():
         raise BadInputError(f"bundle {src} does not exist")
     bundle = load_bundle(src)
-    files = web_files(bundle, cameras_json(bundle, src.resolve()), limit)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stamp = f"{os.getpid()}-{int(time.time() * 1000)}"
-    tmp, old = out.parent / f".{out.name}.tmp-{stamp}", out.parent / f".{out.name}.old-{stamp}"
-    try:
-        for name, data in files.items():
-            path = tmp / name
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(data)
-        if out.exists():
-            os.replace(out, old)
-        os.replace(tmp, out)
-    finally:
-        for leftover in (tmp, old):
-            if leftover.exists():
-                shutil.rmtree(leftover)
-    return out
+    return write_folder(out, web_files(bundle, cameras_json(bundle, src.resolve()), limit))
 
 
 __all__ = ["DATA_SCRIPT", "MARKER", "cameras_json", "data_script", "export_web", "web_files"]
