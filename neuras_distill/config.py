@@ -268,8 +268,10 @@ class SkyboxConfig:
     mode: Mode = "auto"
     """"auto" (skyboxes when training rays miss the mesh and the field's background is not one constant
     colour), "on", "off"."""
-    layers: int = 4
-    """Nested cube layers (NeuRas uses 6 for driving scenes)."""
+    layers: int = 0
+    """Nested cube layers (NeuRas uses 6 for driving scenes). 0 (default): 4, or 8 when at least 20% of the
+    pixels the skyboxes learn look below the horizon (ground beyond the mesh, whose distance changes across the
+    view; ``pipeline.rules.SKY_GROUND_SHARE``)."""
     near: float = 0.0
     """Half size of the innermost layer in world units (0: the foreground box's half diagonal, or 1.25x the
     farthest camera from its centre along an axis, whichever is larger). It must enclose every camera."""
@@ -291,7 +293,7 @@ class SkyboxConfig:
     def validate(self) -> "SkyboxConfig":
         sb = self
         _require_choice(sb.mode, Mode, "skybox mode")
-        require(1 <= sb.layers <= 16, f"skybox layer count must be in 1..16, got {sb.layers}")
+        require(0 <= sb.layers <= 16, f"skybox layer count must be in 0..16 (0: automatic), got {sb.layers}")
         require(sb.near >= 0 and sb.far >= 0, f"skybox distances must be positive (0 = automatic), got "
                                               f"near={sb.near}, far={sb.far}")
         require(not (sb.near and sb.far) or sb.far > sb.near or sb.layers == 1,

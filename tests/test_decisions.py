@@ -160,3 +160,23 @@ def test_only_the_plan_module_writes_the_training_plan():
                 elsewhere.append(f"{path.relative_to(root)}:{node.lineno}")
     assert elsewhere == []
     assert "replace(plan," in home.read_text() and "TrainingPlan(" in home.read_text()
+
+
+def test_skyboxes_that_hold_ground_get_finer_depth_layers():
+    """``skybox.layers`` 0: the share of the skyboxes' pixels looking more than 2 degrees below the horizon picks 8
+    layers from 20% (checker360: 25%, orbit360 about half; the street 9% keeps 4), and the decision says so."""
+    from neuras_distill.pipeline.choices import Decisions, skybox_layers
+    from neuras_distill.pipeline.rules import below_horizon_share
+
+    elevation = np.radians(np.linspace(-30.0, 30.0, 61))                 # one view, 61 x 1 rays, z up
+    dirs = np.stack([np.cos(elevation), np.zeros_like(elevation), np.sin(elevation)], -1).reshape(1, 61, 1, 3)
+    pixels = np.ones((1, 61, 1), bool)
+    assert below_horizon_share(dirs, pixels, [0.0, 0.0, 2.0]) == pytest.approx(28 / 61)       # -30 .. -3 degrees
+    pixels[0, :31] = False                                                # only the level and upward rays
+    assert below_horizon_share(dirs, pixels, [0.0, 0.0, 1.0]) == 0.0
+    assert below_horizon_share(dirs, np.zeros_like(pixels), [0.0, 0.0, 1.0]) == 0.0
+    record = Decisions()
+    assert skybox_layers(0.25, record) == 8 and skybox_layers(0.09, record) == 4
+    kept, left = record.items
+    assert kept.kept and "25% of the pixels the skyboxes learn look below the horizon" in kept.reason
+    assert not left.kept and left.measured["layers"] == 4

@@ -90,7 +90,7 @@ def test_skybox_texture_and_eval_settings_are_validated():
     cfg = load_config(overrides={"eval": {"width": 0}, "texture": {"resolution": 0}, "skybox": {"mode": "off"}})
     assert cfg.eval.width == 0 and cfg.texture.resolution == 0 and cfg.skybox.mode == "off"
     for bad, needle in (({"skybox": {"mode": "sometimes"}}, "skybox mode"),
-                        ({"skybox": {"layers": 0}}, "layer count"),
+                        ({"skybox": {"layers": 17}}, "layer count"),
                         ({"skybox": {"near": 100.0, "far": 10.0}}, "must nest"),
                         ({"texture": {"resolution": 8}}, "texture resolution"),
                         ({"eval": {"width": 8}}, "at least 16"),

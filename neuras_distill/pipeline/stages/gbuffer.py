@@ -9,8 +9,9 @@ import torch
 from ...geometry.mesh import MeshData
 from ...neural.model import view_inputs
 from ...neural.shader_inputs import ShaderInputs
+from ...neural.skybox import plan_layers
 from ...playback.rasterize import rasterize_gbuffer
-from .. import choices
+from .. import choices, rules
 from ..cache import digest
 from ..stage_results import (
     Backdrop,
@@ -48,11 +49,20 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
     skybox, sky_origins, sky_pixels = None, None, None
     if use_skybox:
         sb = cfg.skybox
-        skybox = SkyboxModel(views.sky_layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
-        sky_origins = views.sky_layers.relative(train.centers.double().numpy()).numpy()
         sky_pixels = choices.sky_training_pixels(teacher.surface_depths, teacher.fringe_depths, gbuffer.coverage,
                                                  train.centers.numpy(), dirs[..., :3], ctx.field.aabb,
                                                  ctx.decisions, opacities=teacher.opacities)
+        layers = views.sky_layers
+        if sb.layers == 0:        # automatic: finer depth layers for skyboxes that hold ground
+            learnt = ~gbuffer.coverage if sky_pixels is None else sky_pixels
+            share = rules.below_horizon_share(dirs[..., :3], learnt, train.c2w[:, :3, 1].double().mean(0).numpy())
+            count = choices.skybox_layers(share, ctx.decisions)
+            if count != layers.num_layers:
+                layers = plan_layers(ctx.field.aabb, train.centers.double().numpy(), num_layers=count,
+                                     near=float(layers.half_sizes[0]), far=float(layers.half_sizes[-1]),
+                                     resolution=layers.resolution)
+        skybox = SkyboxModel(layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
+        sky_origins = layers.relative(train.centers.double().numpy()).numpy()
     missed = ~gbuffer.coverage
     if use_skybox or (missed.any() and not ctx.background.constant):
         # the clear colour: what the missed training pixels show on average (skyboxes draw over it)

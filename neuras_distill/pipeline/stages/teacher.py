@@ -35,7 +35,8 @@ def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
     sky_layers = None
     if cfg.skybox.mode != "off":
         sky = cfg.skybox
-        sky_layers = plan_layers(ctx.field.aabb, cameras.centers.double().numpy(), num_layers=sky.layers,
+        sky_layers = plan_layers(ctx.field.aabb, cameras.centers.double().numpy(),
+                                 num_layers=sky.layers or rules.SKY_LAYERS[0],
                                  near=sky.near or None, far=sky.far or None, resolution=sky.resolution)
     ctx.clock.done(train=len(train), test=len(test), train_size=[train.width, train.height],
                    test_size=[test.width, test.height])
