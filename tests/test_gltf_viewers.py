@@ -241,3 +241,30 @@ def test_threejs_places_a_utm_scene_at_its_origin(exported_utm, require_tool, ht
     for i, (a, b) in enumerate(zip(got, there)):
         assert psnr(a, b) >= 50.0, f"view {i}: three.js at UTM vs at the origin {psnr(a, b):.2f} dB"
     assert_matches_plain_player("three.js (UTM)", got, utm, 37.0, tmp_path)
+
+
+def test_the_threejs_plugin_plays_a_utm_scene_like_the_desktop_player(exported_utm, require_tool, http_root,
+                                                                        request):
+    """The UTM-like sphere's ``export --format threejs`` page (GLTFLoader + neuras-three.js) at the run's held-out
+    camera 0 against BundleRenderer's neural frame: the plugin takes the view direction in the node's frame from
+    matrices composed in doubles, so it plays as near the origin (>= 40 dB; 47.7-56.9 dB measured at 160 px)."""
+    from test_web import _play
+
+    from neuras_distill.bake.bundle import load_bundle
+    from neuras_distill.export.threejs import export_threejs
+    from neuras_distill.playback.renderer import BundleRenderer
+    from neuras_distill.render.cameras import Cameras
+
+    require_tool(None if (THREE / "build" / "three.module.js").is_file() else
+                 f"three.js is not installed in {THREE.parent} (npm install --prefix .tools three; setup.sh does)")
+    browser = request.getfixturevalue("browser")
+    glb = exported_utm[0][0]
+    bundle_dir = glb.parent / "run" / "bundle"
+    root, base = http_root
+    export_threejs(bundle_dir, root / "three-utm", THREE)
+    cams = Cameras.from_json(json.loads((root / "three-utm" / "cameras.json").read_text())["test"])
+    with BundleRenderer(load_bundle(bundle_dir)) as player:
+        want = np.round(player.render(cams, 0) * 255.0).astype(np.uint8)
+    got = _play(browser, f"{base}/three-utm/index.html?camera=0")
+    print(f"three.js plugin, UTM sphere: {psnr(got, want):.2f} dB against BundleRenderer")
+    assert psnr(got, want) >= 40.0
