@@ -156,9 +156,9 @@ def test_load_bundle_refuses_a_damaged_extension_and_nothing_is_written(runs, tm
     assert not (tmp_path / "web").exists()
 
 
-def test_threejs_export_copies_three_and_refuses_what_it_cannot_use(runs, tmp_path, capsys):
-    if not (THREE / "build" / "three.module.js").is_file():
-        pytest.skip("three.js is not installed in .tools/ (scripts/setup.sh installs it)")
+def test_threejs_export_copies_three_and_refuses_what_it_cannot_use(runs, tmp_path, capsys, require_tool):
+    require_tool(None if (THREE / "build" / "three.module.js").is_file() else
+                 f"three.js is not installed in {THREE.parent} (npm install --prefix .tools three; setup.sh does)")
     bundle_dir, _ = runs["single"]
     out, version = export_threejs(bundle_dir, tmp_path / "page", THREE)
     assert version == json.loads((THREE / "package.json").read_text())["version"]
