@@ -180,3 +180,37 @@ def test_skyboxes_that_hold_ground_get_finer_depth_layers():
     kept, left = record.items
     assert kept.kept and "25% of the pixels the skyboxes learn look below the horizon" in kept.reason
     assert not left.kept and left.measured["layers"] == 4
+
+
+def test_skyboxes_that_hold_a_ground_lie_on_it_at_each_rings_median_height():
+    """``rules.ground_heights``: each layer's floor is the median height of the hits in its ring (``r_{l-1} <=
+    max(|x|, |y|) < r_l``, z up); a ring with too few takes its nearest filled neighbour's; no floor rises above
+    the lowest camera. ``choices.skybox_ground`` keeps it for a ground, however faint, not for a sky or haze."""
+    from neuras_distill.pipeline.choices import Decisions, skybox_ground
+    from neuras_distill.pipeline.rules import GROUND_MIN_HITS, ground_heights
+
+    rng = np.random.default_rng(0)
+    radii = np.array([4.0, 8.0, 16.0])
+
+    def ring(lo, hi, z, n):
+        r, a = rng.uniform(lo, hi, n), rng.uniform(0, 2 * np.pi, n)
+        p = np.stack([r * np.cos(a), r * np.sin(a), np.full(n, z)], 1)
+        return p[(np.abs(p[:, :2]).max(1) >= lo) & (np.abs(p[:, :2]).max(1) < hi)]
+
+    hits = np.concatenate([ring(0.5, 4.0, -1.0, 200), ring(4.0, 8.0, -1.5, 200), ring(8.0, 16.0, -3.0, 5)])
+    heights, measured = ground_heights(hits, np.array([0.0, 0.0, 1.0]), radii, np.array([0.5, 0.7]))
+    assert heights.tolist() == pytest.approx([-1.0, -1.5, -1.5])              # the outer ring borrows
+    assert measured["hits_per_layer"][2] < GROUND_MIN_HITS
+    high, _ = ground_heights(ring(0.5, 4.0, 2.0, 200), np.array([0.0, 0.0, 1.0]), radii, np.array([0.5, 0.7]))
+    assert (high < 0.5).all()                                                   # kept under the cameras
+    none, _ = ground_heights(np.zeros((0, 3)), np.array([0.0, 0.0, 1.0]), radii, np.array([0.5]))
+    assert none.size == 0
+    record = Decisions()
+    assert skybox_ground(0.25, 0.9, heights, record)
+    assert not skybox_ground(0.09, 0.9, heights, record)                        # a sky
+    assert not skybox_ground(0.25, 0.2, np.zeros(0), record)                    # haze: no ring has hits
+    assert not skybox_ground(0.25, None, heights, record)                       # no far region
+    kept, *left = record.items
+    assert kept.kept and kept.measured["heights"] == pytest.approx([-1.0, -1.5, -1.5])
+    assert [item.kept for item in left] == [False, False, False]
+    assert "haze" in left[1].reason

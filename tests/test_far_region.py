@@ -96,3 +96,17 @@ def test_nan_and_inf_densities_in_the_far_region_are_empty_and_opaque():
         o, d = _rays([[0.0, 0.0, 0.0]], [[-1.0, 0.2, 0.1]])
         out = VolumeRenderer(field, num_steps=16, far_steps=64, occupancy=None).render_rays(o, d)
         assert torch.allclose(out["rgb"], torch.tensor([colour]), atol=1e-6), (value, out["rgb"])
+
+
+def test_opaque_depths_find_where_the_whole_ray_reaches_half_opacity():
+    """A uniform medium reaches 0.5 at near + ln 2 / sigma (to one sample's length); a distant shell (radius 18 to
+    22, sigma 50) at its inner surface; an empty ray never does (inf)."""
+    from neuras_distill.render.far_region import opaque_depths
+
+    region = FarRegion(near=0.1, far=1000.0, pivot=1.0)
+    o, d = _rays([[0.0, 0.0, 0.0]], [[1.0, 0.3, 0.2]])
+    t = opaque_depths(Medium(0.3, region), region, o, d, steps=512)
+    assert float(t[0]) == pytest.approx(0.1 + math.log(2.0) / 0.3, abs=0.05)
+    t = opaque_depths(Medium(50.0, region, shell=20.0), region, o.repeat(3, 1), d.repeat(3, 1), steps=512)
+    assert torch.allclose(t, torch.full((3,), 18.0, dtype=torch.float64), atol=0.6), t
+    assert torch.isinf(opaque_depths(Medium(0.0, region), region, o, d, steps=64)).all()

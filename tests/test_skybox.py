@@ -13,7 +13,7 @@ from neuras_distill.bake.bundle import bake, load_bundle
 from neuras_distill.errors import BadInputError
 from neuras_distill.geometry.mesh import MeshData
 from neuras_distill.neural.model import NeuralTextureModel
-from neuras_distill.neural.skybox import SkyboxLayers, SkyboxModel, plan_layers
+from neuras_distill.neural.skybox import SkyboxGround, SkyboxLayers, SkyboxModel, plan_layers
 from neuras_distill.render.cameras import Cameras, look_at
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -51,6 +51,34 @@ def test_exit_points_land_on_the_right_face_and_texel():
     assert float(uv[1]) * 16 == pytest.approx((b * 0.5 + 0.5) * 4, abs=1e-4)
     # axis-aligned directions with exact zeros stay finite
     assert torch.isfinite(layers.atlas_uv(torch.zeros(3, 3), torch.eye(3))).all()
+
+
+def test_a_ray_that_meets_the_ground_first_lands_on_the_bottom_face_where_it_hit():
+    """Floors at z = -1 (layer 0) and -3 (layer 1), z up: a ray going down meets the floor inside the cube and is
+    stored on face -z (5) at the hit's in-face coordinates (a = x, b = y); a level ray and one that leaves through a
+    wall first are unchanged; the floors round-trip through JSON and must lie below the cameras."""
+    ground = SkyboxGround([0.0, 0.0, 2.0], [-1.0, -3.0])
+    assert ground.axis == 2 and ground.face == 5 and ground.normal.tolist() == [0.0, 0.0, 1.0]
+    layers = SkyboxLayers((0, 0, 0), [2.0, 8.0], 4, ground)
+    cubes = SkyboxLayers((0, 0, 0), [2.0, 8.0], 4)
+    o = torch.tensor([[0.2, -0.1, 0.5], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    d = _unit([[0.5, 0.25, -1.0], [1.0, 0.0, 0.0], [1.0, 0.0, -0.45]])
+    uv, plain = layers.atlas_uv(o, d), cubes.atlas_uv(o, d)
+    for layer, (h, r) in enumerate(((-1.0, 2.0), (-3.0, 8.0))):
+        t = (h - 0.5) / float(d[0, 2])
+        hit = o[0] + t * d[0]
+        a, b = float(hit[0]) / r, float(hit[1]) / r                            # face -z (k = 2): a = x, b = y
+        assert float(uv[layer, 0, 0]) * 12 == pytest.approx(2 * 4 + (a * 0.5 + 0.5) * 4, abs=1e-4)   # column 2
+        assert float(uv[layer, 0, 1]) * 16 == pytest.approx((2 * layer + 1) * 4 + (b * 0.5 + 0.5) * 4, abs=1e-4)
+    assert torch.equal(uv[:, 1], plain[:, 1])                                   # level: through the wall
+    assert torch.equal(uv[0, 2], plain[0, 2])                                   # x = 2 comes before z = -1 (x = 2.2)
+    assert not torch.equal(uv[1, 2], plain[1, 2])                               # z = -3 (x = 6.7) comes before x = 8
+    back = SkyboxLayers.from_json(layers.to_json())
+    assert back.ground.heights.tolist() == [-1.0, -3.0] and "ground" not in cubes.to_json()
+    with pytest.raises(BadInputError, match="below the cameras"):
+        layers.check_cameras(np.array([[0.0, 0.0, -1.5]]))
+    with pytest.raises(BadInputError, match="one height per layer"):
+        SkyboxLayers((0, 0, 0), [2.0, 8.0], 4, SkyboxGround([0, 0, 1], [-1.0]))
 
 
 def test_layers_must_nest_and_enclose_the_cameras():
@@ -119,16 +147,25 @@ def _cameras(center, n=3, width=96, height=54):
 
 
 @needs_gl
-def test_sky_pass_matches_torch_through_the_bundle_renderer(tmp_path):
+@pytest.mark.parametrize("ground", [None, SkyboxGround([0.05, -0.03, 1.0], [-0.6, -1.0, -1.5])],
+                         ids=["cubes", "on the ground"])
+def test_sky_pass_matches_torch_through_the_bundle_renderer(tmp_path, ground):
     from neuras_distill.playback.renderer import BundleRenderer
 
     center = np.array([0.25, -0.5, 0.75])
-    layers = SkyboxLayers(center, [2.0, 5.0, 12.0], 8)
+    layers = SkyboxLayers(center, [2.0, 5.0, 12.0], 8, ground)
     sky = _trained_like(layers)
     model, mesh = _tiny_mesh_model()
     cams = _cameras(center)
     bundle = load_bundle(bake(model, mesh, (0, 0, 0), skybox=sky).save(tmp_path / "b"))
     assert bundle.has_skybox and "vec3 u_sky_origin" in bundle.sky_fragment_shader
+    assert ("GROUND_H" in bundle.sky_fragment_shader) == (ground is not None)
+    if ground is not None:                                                 # the third camera looks down at it
+        o, d = cams.rays(2)
+        floor = (layers.atlas_uv(layers.relative(o.reshape(-1, 3)), d.reshape(-1, 3))
+                 != SkyboxLayers(center, [2.0, 5.0, 12.0], 8).atlas_uv(layers.relative(o.reshape(-1, 3)),
+                                                                       d.reshape(-1, 3))).any(-1)
+        assert floor.float().mean() > 0.3
     with BundleRenderer(bundle) as player:
         for i in range(len(cams)):
             gl = player.render(cams, i)

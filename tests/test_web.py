@@ -131,12 +131,14 @@ def _run_folder(root: Path, kind: str) -> tuple[Path, Cameras | None]:
                  extra_manifest={"cull_back_faces": True})
         cams = Cameras.orbit(ORIGIN, 2.0, 2, width=128, height=96, elevation_deg=20.0, phase_deg=10.0)
     else:
-        from neuras_distill.neural.skybox import SkyboxLayers
+        from neuras_distill.neural.skybox import SkyboxGround, SkyboxLayers
         from test_skybox import _tiny_mesh_model, _trained_like
 
         model, mesh = _tiny_mesh_model()
-        b = bake(model, mesh, (0, 0, 0), skybox=_trained_like(SkyboxLayers(ORIGIN, [2.0, 5.0], 4)), origin=ORIGIN,
-                 extra_manifest={"silhouette_blend": True})
+        # the small one lies on a ground below the quad (its floors are constants of the sky shader)
+        ground = SkyboxGround([0.0, 0.1, 1.0], [-0.3, -0.8]) if kind == "skybox" else None
+        b = bake(model, mesh, (0, 0, 0), skybox=_trained_like(SkyboxLayers(ORIGIN, [2.0, 5.0], 4, ground)),
+                 origin=ORIGIN, extra_manifest={"silhouette_blend": True})
         if kind == "demo-size-skybox":  # the demo's codebook and a sky codebook taller than SwiftShader's limit
             b = grown(b, model, DEMO_CODES, DEMO_SKY_CODES)
             assert b.textures["u_sky_codebook"].shape[0] == DEMO_SKY_CODES > 8192

@@ -8,7 +8,9 @@ torch forward pass of ``neural/skybox.py`` step by step:
   camera-to-world rotation and normalised; the origin is ``u_sky_origin``, the camera centre *relative to the
   skybox centre* (subtracted in float64 on the CPU, so kilometre offsets cost no float32 precision);
 - per layer (near to far): the exit distance ``min_k (sign(d_k) r - o_k) / d_k`` with the first minimum on
-  ties, the face, the clamped in-face texel coordinate and the atlas uv, in the same order of operations;
+  ties, then the layer's floor where it comes first (``(h_l - n.o) / n.d`` for rays going down, stored on
+  the downward face) when the layers hold a ground, the face, the clamped in-face texel coordinate and the
+  atlas uv, in the same order of operations;
 - the bilinear corner lookup of the index texture (``u_sky_index``) and codebook (``u_sky_codebook``) as the
   mesh shader does (``bake/glsl.py``);
 - the MLP (``l1`` ReLU, opacity head sigmoid, ``l2`` on [h, d] ReLU, ``l3`` sigmoid) unrolled as mat4 * vec4
@@ -57,10 +59,13 @@ def generate_sky_fragment_shader(skybox) -> str:
     radii = ", ".join(glsl_float(r) for r in layers.half_sizes)
     n_layers = layers.num_layers
     fr = glsl_float(float(f_res))
+    ground = layers.ground
+    tiny = glsl_float(1e-20)
 
     lines = [
         "#version 400 core",
-        f"// NeuRas neural skyboxes: {n_layers} cube layers (half sizes {layers.half_sizes.round(3).tolist()}), "
+        f"// NeuRas neural skyboxes: {n_layers} cube layers (half sizes {layers.half_sizes.round(3).tolist()}"
+        + ("" if ground is None else f", floors at {ground.heights.round(3).tolist()}") + "), "
         f"{f_res}^2 texels per face, D={dim}, MLP {dim} -> {hidden} (-> opacity) -> [{hidden} + dir] -> {hidden} -> 3",
         "uniform vec3 u_sky_origin;",
         "uniform mat3 u_cam_rot;",
@@ -71,14 +76,19 @@ def generate_sky_fragment_shader(skybox) -> str:
         "out vec4 f_color;",
         f"const int LAYERS = {n_layers};",
         f"const float RADII[{n_layers}] = float[]({radii});",
+        *([] if ground is None else [
+            "const vec3 GROUND_N = vec3(" + ", ".join(glsl_float(float(np.float32(v))) for v in ground.normal) + ");",
+            f"const float GROUND_H[{n_layers}] = float[]("
+            + ", ".join(glsl_float(float(np.float32(h))) for h in ground.heights) + ");"]),
         "",
         "void main() {",
         "    vec2 px = vec2(gl_FragCoord.x, u_height - gl_FragCoord.y);",
         "    vec3 dc = vec3((px.x - u_intrinsics.z) / u_intrinsics.x, -(px.y - u_intrinsics.w) / u_intrinsics.y, -1.0);",
         "    vec3 d = normalize(u_cam_rot * dc);",
-        f"    vec3 dd = mix(d, vec3({glsl_float(1e-20)}), lessThan(abs(d), vec3({glsl_float(1e-20)})));",
+        f"    vec3 dd = mix(d, vec3({tiny}), lessThan(abs(d), vec3({tiny})));",
         "    vec3 sg = mix(vec3(1.0), vec3(-1.0), lessThan(dd, vec3(0.0)));",
         "    vec3 o = u_sky_origin;",
+        *([] if ground is None else ["    float d_up = dot(dd, GROUND_N);", "    float o_up = dot(o, GROUND_N);"]),
         "    vec3 acc = vec3(0.0);",
         "    float trans = 1.0;",
         "    for (int l = 0; l < LAYERS; ++l) {",
@@ -88,10 +98,16 @@ def generate_sky_fragment_shader(skybox) -> str:
         "        float tm = t.x;",
         "        if (t.y < tm) { tm = t.y; ax = 1; }",
         "        if (t.z < tm) { tm = t.z; ax = 2; }",
+        "        int neg = dd[ax] < 0.0 ? 1 : 0;",
+        *([] if ground is None else [
+            f"        if (d_up < -{tiny}) {{",
+            "            float tf = (GROUND_H[l] - o_up) / d_up;",
+            f"            if (tf < tm) {{ tm = tf; ax = {ground.axis}; neg = {ground.face % 2}; }}",
+            "        }"]),
         "        vec3 hit = o + tm * dd;",
         "        float a = (ax == 0 ? hit.y : (ax == 1 ? hit.z : hit.x)) / r;",
         "        float b = (ax == 0 ? hit.z : (ax == 1 ? hit.x : hit.y)) / r;",
-        "        int face = 2 * ax + (dd[ax] < 0.0 ? 1 : 0);",
+        "        int face = 2 * ax + neg;",
         f"        float x = clamp((a * 0.5 + 0.5) * {fr}, 0.5, {glsl_float(f_res - 0.5)});",
         f"        float y = clamp((b * 0.5 + 0.5) * {fr}, 0.5, {glsl_float(f_res - 0.5)});",
         "        float col = float(face % 3);",

@@ -14,6 +14,13 @@ Every camera lies inside the innermost cube, so each ray leaves each cube exactl
 ``t = min_k (sign(d_k) r - p_k) / d_k``; the exit face is ``f = 2k + (d_k < 0)`` (+x, -x, +y, -y, +z, -z),
 with in-face coordinates ``(s, q) = (p[(k+1)%3], p[(k+2)%3]) / r`` in [-1, 1].
 
+Ground (optional, :class:`SkyboxGround`). Layers that hold a ground are cut by a floor ``n . p = h_l`` (unit
+``n`` the up direction, ``h_l`` below every camera): a ray going down (``n . d < 0``) that meets the floor
+before it leaves the cube, at ``t_g = (h_l - n . o) / (n . d) < t``, ends there, and the floor point is stored
+on the cube's bottom face (the face of the axis ``k = argmax |n_k|`` that looks down), at the same in-face
+coordinates of the hit. So a flat ground is painted where it lies, not on the walls of a cube around the
+scene: it does not slide against the mesh's ground as the camera moves (a ground-projected skybox).
+
 Atlas. All faces of all layers share one feature atlas of ``(2 F L) x (3 F)`` texels (F = face resolution):
 face ``f`` of layer ``l`` is the F x F block at column ``(f % 3) F`` and row ``(2 l + f // 3) F``. Texel
 coordinates inside a face are clamped to ``[0.5, F - 0.5]`` so bilinear filtering never reads a neighbouring
@@ -44,6 +51,42 @@ TINY = 1e-20
 
 
 @dataclass
+class SkyboxGround:
+    """The floors that cut the layers (module docstring, "Ground").
+
+    Attributes:
+        normal: (3,) float64 unit up direction, world frame.
+        heights: (L,) float64 floor of each layer along ``normal``, relative to the layers' centre.
+    """
+
+    normal: np.ndarray
+    heights: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.normal = np.asarray(self.normal, dtype=np.float64).reshape(3)
+        self.heights = np.asarray(self.heights, dtype=np.float64).reshape(-1)
+        if not (np.isfinite(self.normal).all() and np.isfinite(self.heights).all()):
+            raise BadInputError("a skybox ground needs a finite normal and finite heights")
+        norm = float(np.linalg.norm(self.normal))
+        if not norm > 0:
+            raise BadInputError("a skybox ground needs a non-zero normal")
+        self.normal = self.normal / norm
+
+    @property
+    def axis(self) -> int:
+        """The cube axis closest to the normal: the floor is stored on that axis's downward face."""
+        return int(np.argmax(np.abs(self.normal)))
+
+    @property
+    def face(self) -> int:
+        """Index of the cube face that looks down (``2 k + 1`` when ``n_k > 0``)."""
+        return 2 * self.axis + int(self.normal[self.axis] > 0)
+
+    def to_json(self) -> dict:
+        return {"normal": self.normal.tolist(), "heights": self.heights.tolist()}
+
+
+@dataclass
 class SkyboxLayers:
     """Nested cube layers.
 
@@ -51,11 +94,13 @@ class SkyboxLayers:
         center: (3,) float64 world position of the common centre.
         half_sizes: (L,) float64 half side lengths r_l in world units, strictly increasing.
         resolution: F, texels along a face side.
+        ground: the floors that cut the layers, or None (pure cubes).
     """
 
     center: np.ndarray
     half_sizes: np.ndarray
     resolution: int
+    ground: SkyboxGround | None = None
 
     def __post_init__(self) -> None:
         self.center = np.asarray(self.center, dtype=np.float64).reshape(3)
@@ -71,6 +116,9 @@ class SkyboxLayers:
                                 f"got {[round(float(x), 4) for x in r]}")
         if not 2 <= self.resolution <= 4096:
             raise BadInputError(f"skybox face resolution must be in 2..4096 texels, got {self.resolution}")
+        if self.ground is not None and self.ground.heights.size != r.size:
+            raise BadInputError(f"a skybox ground needs one height per layer ({r.size}), "
+                                f"got {self.ground.heights.size}")
 
     @property
     def num_layers(self) -> int:
@@ -94,6 +142,11 @@ class SkyboxLayers:
             raise BadInputError(f"the innermost skybox layer (half size {self.half_sizes[0]:.4g}) does not enclose "
                                 f"every camera (one is {reach:.4g} from the centre along an axis); use a larger "
                                 "skybox near distance")
+        if self.ground is not None and p.size:
+            lowest = float((p @ self.ground.normal).min())
+            if lowest <= float(self.ground.heights.max()):
+                raise BadInputError(f"a skybox ground lies above a camera (height {self.ground.heights.max():.4g}, "
+                                    f"lowest camera {lowest:.4g}): every floor must lie below the cameras")
 
     def atlas_uv(self, origins: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
         """Atlas coordinates where rays leave each layer.
@@ -109,15 +162,27 @@ class SkyboxLayers:
         h_atlas, w_atlas = self.atlas_size
         d = torch.where(dirs.abs() < TINY, torch.full_like(dirs, TINY), dirs)
         sgn = torch.where(d < 0, -torch.ones_like(d), torch.ones_like(d))
+        ground = self.ground
+        if ground is not None:
+            n = torch.from_numpy(ground.normal.astype(np.float32))
+            d_up, o_up = d @ n, origins @ n                                      # (B,) each
+            down = d_up < -TINY
+            d_up_safe = torch.where(down, d_up, torch.full_like(d_up, -1.0))
         out = []
         for layer, r in enumerate(self.half_sizes.astype(np.float32).tolist()):
             t = (sgn * r - origins) / d                                          # (B, 3)
             k = torch.argmin(t, dim=1)                                           # first minimum, as GLSL
             tmin = t.gather(1, k[:, None])
+            neg = (d.gather(1, k[:, None])[:, 0] < 0).long()
+            if ground is not None:                                               # the floor, where it comes first
+                t_floor = (float(np.float32(ground.heights[layer])) - o_up) / d_up_safe
+                floor = down & (t_floor < tmin[:, 0])
+                tmin = torch.where(floor[:, None], t_floor[:, None], tmin)
+                k = torch.where(floor, torch.full_like(k, ground.axis), k)
+                neg = torch.where(floor, torch.full_like(neg, ground.face % 2), neg)
             hit = origins + tmin * d
             a = hit.gather(1, ((k + 1) % 3)[:, None])[:, 0] / r
             b = hit.gather(1, ((k + 2) % 3)[:, None])[:, 0] / r
-            neg = (d.gather(1, k[:, None])[:, 0] < 0).long()
             face = 2 * k + neg
             x = ((a * 0.5 + 0.5) * f_res).clamp(0.5, f_res - 0.5)
             y = ((b * 0.5 + 0.5) * f_res).clamp(0.5, f_res - 0.5)
@@ -127,12 +192,18 @@ class SkyboxLayers:
         return torch.stack(out)
 
     def to_json(self) -> dict:
-        return {"center": self.center.tolist(), "half_sizes": self.half_sizes.tolist(),
-                "resolution": self.resolution}
+        out = {"center": self.center.tolist(), "half_sizes": self.half_sizes.tolist(),
+               "resolution": self.resolution}
+        if self.ground is not None:
+            out["ground"] = self.ground.to_json()
+        return out
 
     @classmethod
     def from_json(cls, data: dict) -> "SkyboxLayers":
-        return cls(np.asarray(data["center"]), np.asarray(data["half_sizes"]), int(data["resolution"]))
+        ground = data.get("ground")
+        return cls(np.asarray(data["center"]), np.asarray(data["half_sizes"]), int(data["resolution"]),
+                   None if ground is None else SkyboxGround(np.asarray(ground["normal"]),
+                                                            np.asarray(ground["heights"])))
 
 
 def plan_layers(aabb, camera_centers, *, num_layers: int = 4, near: float | None = None,
@@ -236,4 +307,4 @@ class SkyboxModel(nn.Module):
         return params
 
 
-__all__ = ["SkyboxLayers", "SkyboxShader", "SkyboxModel", "plan_layers", "TINY"]
+__all__ = ["SkyboxGround", "SkyboxLayers", "SkyboxShader", "SkyboxModel", "plan_layers", "TINY"]

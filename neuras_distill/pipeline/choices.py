@@ -103,6 +103,36 @@ def skybox_layers(share_below: float, record: Decisions) -> int:
     return usual
 
 
+def skybox_ground(share_below: float, hit_share: float | None, heights: np.ndarray, record: Decisions,
+                  **measured) -> bool:
+    """Whether skyboxes that hold ground lie on it (``neural.skybox.SkyboxGround``): when ``share_below`` of their
+    training pixels look below the horizon (at least ``rules.SKY_GROUND_SHARE``) and some of the probed ones reach
+    the field's ground: ``heights`` ((L,), ``rules.ground_heights``) is empty when no layer's ring held
+    ``rules.GROUND_MIN_HITS`` hits. ``hit_share``: the share of probed rays that reached it (None: the field has
+    no far region to probe)."""
+    name = "skyboxes on the ground"
+    measured = {"below_horizon_share": float(share_below), "ground_hit_share": hit_share, **measured}
+    if share_below < rules.SKY_GROUND_SHARE:
+        record.leave_out(name, f"{100 * share_below:.0f}% of the pixels the skyboxes learn look below the horizon "
+                         f"(under {100 * rules.SKY_GROUND_SHARE:.0f}%): their cubes hold a sky", **measured)
+        return False
+    if hit_share is None:
+        record.leave_out(name, "the field has no far region to find a ground in: the cube layers paint what lies "
+                         "below the horizon", **measured)
+        return False
+    if heights.size == 0:
+        record.leave_out(name, f"{100 * hit_share:.0f}% of the probed rays that look down reach opacity 0.5 in the "
+                         f"field, fewer than {rules.GROUND_MIN_HITS} around any layer: haze, not a ground; the cube "
+                         "layers paint it", **measured)
+        return False
+    record.keep(name, f"{100 * share_below:.0f}% of the pixels the skyboxes learn look below the horizon and "
+                f"{100 * hit_share:.0f}% of those probed reach the field's ground: each layer is cut by a floor at "
+                f"the median height of the hits around it ({', '.join(f'{h:.3g}' for h in heights)} along the "
+                "cameras' up), so the ground beyond the mesh is painted where it lies instead of on the cubes' walls",
+                heights=[float(h) for h in heights], **measured)
+    return True
+
+
 def sky_training_pixels(surface_depths: np.ndarray, fringe_depths: np.ndarray, coverage: np.ndarray,
                         origins: np.ndarray, dirs: np.ndarray, aabb, record: Decisions,
                         opacities: np.ndarray | None = None) -> np.ndarray:

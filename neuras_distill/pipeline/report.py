@@ -110,7 +110,7 @@ def summary_table(rep: dict) -> str:
     sky = rep.get("skybox") or {}
     if sky.get("used"):
         lines.append(f"skyboxes: {len(sky['half_sizes'])} layers, half sizes "
-                     + ", ".join(f"{r:.4g}" for r in sky["half_sizes"]) + f"; {sky['reason']}")
+                     + ", ".join(f"{r:.4g}" for r in sky["half_sizes"]) + _floors(sky) + f"; {sky['reason']}")
     for name, q in (rep.get("extrapolation") or {}).items():
         lines.append(f"lane shift {name}: {q['psnr']:.2f} dB / SSIM {q['ssim']:.4f}")
     if rep.get("ablation"):
@@ -166,13 +166,22 @@ def summary_rows(rep: dict) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
     return ("", "before (field, volume rendering)", "after (bundle, OpenGL)"), rows
 
 
+def _floors(sky: dict) -> str:
+    """", floors at h0, h1, ... along (up)" for skyboxes that lie on the ground (``SkyboxGround``), else ""."""
+    ground = sky.get("ground")
+    if not ground:
+        return ""
+    return (", floors at " + ", ".join(f"{h:.3g}" for h in ground["heights"])
+            + f" along ({', '.join(f'{v:.3f}' for v in ground['normal'])})")
+
+
 def _skybox_blocks(rep: dict) -> list[tuple]:
     sky = rep.get("skybox") or {}
     if not sky.get("used"):
         return []
     blocks = [("heading", 2, "Skyboxes"),
               ("para", f"{len(sky['half_sizes'])} cube layers around {[round(c, 3) for c in sky['center']]}, "
-                       "half sizes " + ", ".join(f"{r:.4g}" for r in sky["half_sizes"])
+                       "half sizes " + ", ".join(f"{r:.4g}" for r in sky["half_sizes"]) + _floors(sky)
                        + f", {sky['resolution']}^2 texels per face, {sky['num_codes']} codes. "
                        f"Why: {sky['reason']}.")]
     if rep.get("extrapolation"):

@@ -83,6 +83,55 @@ def below_horizon_share(directions, pixels, up) -> float:
     return below / total if total else 0.0
 
 
+#: Skyboxes that hold ground (``SKY_GROUND_SHARE``) lie on it (``neural.skybox.SkyboxGround``) where their rays
+#: that look below the horizon reach opacity 0.5 in the field before its far plane, probed on at most
+#: ``GROUND_PROBE_RAYS`` of them with ``GROUND_PROBE_STEPS`` samples each; a layer's floor is the median height of
+#: the hits in its ring when it holds at least ``GROUND_MIN_HITS`` of them. No share of hits is asked for: on
+#: orbit360 only 43% of the probed rays reach 0.5 (a faint, partly trained far ground), and floors at the heights
+#: of those that do scored 27.68 -> 29.28 dB against the teacher (checker360, 100% reach it: 24.41 -> 25.28).
+GROUND_PROBE_RAYS = 4096
+GROUND_PROBE_STEPS = 256
+GROUND_MIN_HITS = 16
+
+
+def ground_heights(hits: np.ndarray, up: np.ndarray, half_sizes: np.ndarray,
+                   camera_heights: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Each skybox layer's floor from where rays that look down reach the field's ground.
+
+    Layer ``l``'s floor holds what lies between the cube ``l - 1`` and the cube ``l`` around the centre, seen
+    from above: its ring is ``r_{l-1} <= max(|p_i|, |p_j|) < r_l`` over the two cube axes other than the one
+    closest to ``up`` (``r_{-1} = 0``). Its height is the median height of the hits in that ring; a ring with
+    fewer than :data:`GROUND_MIN_HITS` takes the nearest ring's that has them (the inner one on a tie). Every
+    floor is kept 1% of the innermost layer below the lowest camera.
+
+    Args:
+        hits: (M, 3) float64 points where probed rays reach opacity 0.5, relative to the layers' centre.
+        up: (3,) unit up direction. half_sizes: (L,) the layers' half sizes.
+        camera_heights: (N,) the cameras' heights along ``up``, relative to the centre.
+    Returns:
+        ((L,) float64 heights along ``up`` relative to the centre, {"hits_per_layer": [...]}); the heights are
+        empty when no ring holds enough hits.
+    """
+    hits, up = np.asarray(hits, np.float64).reshape(-1, 3), np.asarray(up, np.float64)
+    r = np.asarray(half_sizes, np.float64)
+    axis = int(np.argmax(np.abs(up)))
+    across = [k for k in range(3) if k != axis]
+    reach = np.abs(hits[:, across]).max(axis=1) if len(hits) else np.zeros(0)
+    height = hits @ up
+    inner = np.concatenate([[0.0], r[:-1]])
+    counts = [int(np.count_nonzero((reach >= a) & (reach < b))) for a, b in zip(inner, r)]
+    filled = [i for i, c in enumerate(counts) if c >= GROUND_MIN_HITS]
+    if not filled:
+        return np.zeros(0), {"hits_per_layer": counts}
+    out = np.empty(r.size)
+    for layer in range(r.size):
+        src = min(filled, key=lambda i: (abs(i - layer), i))
+        a, b = inner[src], r[src]
+        out[layer] = float(np.median(height[(reach >= a) & (reach < b)]))
+    ceiling = float(np.min(camera_heights)) - 0.01 * float(r[0])
+    return np.minimum(out, ceiling), {"hits_per_layer": counts}
+
+
 #: A skybox pixel whose ray holds at least this opacity inside the foreground box shows content the mesh missed
 #: there (``choices.sky_training_pixels`` reports their share; below 0.5 they are not near misses, so the skyboxes
 #: still learn them).

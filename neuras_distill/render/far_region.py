@@ -126,3 +126,32 @@ def march_interval(field, region: FarRegion, step_s: float, o: torch.Tensor, d: 
         k0 += segment
         live = live[(n_steps[live] > k0) & (trans[live] > early_stop)]
     return trans
+
+
+@torch.no_grad()
+def opaque_depths(field, region: FarRegion, o: torch.Tensor, d: torch.Tensor, *, steps: int = 256,
+                  level: float = 0.5, chunk: int = 2048) -> torch.Tensor:
+    """Where each whole ray (near .. far) first reaches opacity ``level``: the depth the field's picture shows
+    along it, foreground box and far region alike.
+
+    Args:
+        o, d: (N, 3) ray origins and unit directions of travel, world frame (float64 keeps far origins exact).
+        steps: samples spanning near .. far, uniform in ``region.spacing``.
+    Returns:
+        (N,) float64 distances along the rays; ``inf`` where a ray stays below ``level`` up to the far plane.
+    """
+    s = torch.linspace(float(region.spacing(torch.tensor(region.near, dtype=torch.float64))),
+                       float(region.spacing(torch.tensor(region.far, dtype=torch.float64))), steps + 1,
+                       dtype=torch.float64)
+    t = region.inverse(s)
+    t_mid, dt = 0.5 * (t[1:] + t[:-1]), (t[1:] - t[:-1]).float()
+    out = torch.full((o.shape[0],), math.inf, dtype=torch.float64)
+    for i in range(0, o.shape[0], chunk):
+        oc, dc = o[i:i + chunk].double(), d[i:i + chunk].double()
+        pts = oc[:, None, :] + t_mid[None, :, None] * dc[:, None, :]                 # (n, steps, 3)
+        sigma = field.geometry(pts.reshape(-1, 3).float()).reshape(pts.shape[:2]).float()
+        opacity = -torch.expm1(-torch.cumsum(optical_depth(sigma, dt[None, :]), dim=1))
+        reached = opacity >= level
+        first = reached.float().argmax(dim=1)
+        out[i:i + chunk] = torch.where(reached.any(dim=1), t_mid[first], torch.full_like(t_mid[first], math.inf))
+    return out

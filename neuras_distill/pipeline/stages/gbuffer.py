@@ -9,8 +9,9 @@ import torch
 from ...geometry.mesh import MeshData
 from ...neural.model import view_inputs
 from ...neural.shader_inputs import ShaderInputs
-from ...neural.skybox import plan_layers
+from ...neural.skybox import SkyboxGround, SkyboxLayers, plan_layers
 from ...playback.rasterize import rasterize_gbuffer
+from ...render.far_region import opaque_depths
 from .. import choices, rules
 from ..cache import digest
 from ..stage_results import (
@@ -53,14 +54,16 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
                                                  train.centers.numpy(), dirs[..., :3], ctx.field.aabb,
                                                  ctx.decisions, opacities=teacher.opacities)
         layers = views.sky_layers
+        learnt = ~gbuffer.coverage if sky_pixels is None else sky_pixels
+        up = train.c2w[:, :3, 1].double().mean(0).numpy()
+        share = rules.below_horizon_share(dirs[..., :3], learnt, up)
         if sb.layers == 0:        # automatic: finer depth layers for skyboxes that hold ground
-            learnt = ~gbuffer.coverage if sky_pixels is None else sky_pixels
-            share = rules.below_horizon_share(dirs[..., :3], learnt, train.c2w[:, :3, 1].double().mean(0).numpy())
             count = choices.skybox_layers(share, ctx.decisions)
             if count != layers.num_layers:
                 layers = plan_layers(ctx.field.aabb, train.centers.double().numpy(), num_layers=count,
                                      near=float(layers.half_sizes[0]), far=float(layers.half_sizes[-1]),
                                      resolution=layers.resolution)
+        layers = _on_the_ground(ctx, train, dirs, learnt, up, share, layers)
         skybox = SkyboxModel(layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
         sky_origins = layers.relative(train.centers.double().numpy()).numpy()
     missed = ~gbuffer.coverage
@@ -87,3 +90,42 @@ def shader_view_inputs(ctx: RunContext, train, gbuffer, inputs: ShaderInputs, co
         dirs[i] = view_inputs(train.rays(i)[1].numpy(), gbuffer.face_id[i], normal, inputs.use_facing, core_faces,
                               reflect=inputs.reflect)
     return dirs
+
+
+def _on_the_ground(ctx: RunContext, train, dirs, learnt, up: np.ndarray, share_below: float,
+                   layers: SkyboxLayers) -> SkyboxLayers:
+    """``layers`` cut by the field's ground (``choices.skybox_ground``) when they hold one.
+
+    Probes at most ``rules.GROUND_PROBE_RAYS`` of the skyboxes' training pixels (``learnt`` (N, H, W) bool) that
+    look below the horizon, evenly over them in view order: where each ray (``dirs`` (N, H, W, 3+) world, from
+    the training camera's centre) first reaches opacity 0.5 over the field's whole extent, marched in the run's
+    local frame (``ctx.origin``).
+    """
+    up = up / max(float(np.linalg.norm(up)), 1e-30)
+    region = getattr(ctx.field, "far_region", None)
+    if share_below < rules.SKY_GROUND_SHARE or region is None:
+        choices.skybox_ground(share_below, None, np.zeros(0), ctx.decisions)
+        return layers
+    limit = -np.sin(np.radians(rules.SKY_HORIZON_DEG))
+    picked = [np.flatnonzero(np.asarray(learnt[i]).reshape(-1)
+                             & (np.asarray(dirs[i, ..., :3]).reshape(-1, 3) @ up < limit)) for i in range(len(train))]
+    total = sum(len(p) for p in picked)
+    stride = max(1, -(-total // rules.GROUND_PROBE_RAYS))
+    origins, directions, seen = [], [], 0
+    for i, p in enumerate(picked):
+        chosen = p[(-seen) % stride::stride]
+        seen += len(p)
+        directions.append(np.asarray(dirs[i, ..., :3]).reshape(-1, 3)[chosen].astype(np.float64))
+        origins.append(np.repeat(train.centers[i].double().numpy()[None], len(chosen), axis=0))
+    o = torch.from_numpy(np.concatenate(origins) - ctx.origin)          # the run's local frame: small numbers
+    d = torch.from_numpy(np.concatenate(directions))
+    t = opaque_depths(ctx.local_field, region, o, d, steps=rules.GROUND_PROBE_STEPS)
+    reached = torch.isfinite(t)
+    hits = (o[reached] + t[reached, None] * d[reached]).numpy() + (ctx.origin - layers.center)
+    camera_heights = (train.centers.double().numpy() - layers.center) @ up
+    heights, measured = rules.ground_heights(hits, up, layers.half_sizes, camera_heights)
+    hit_share = float(reached.double().mean()) if len(t) else 0.0
+    if not choices.skybox_ground(share_below, hit_share, heights, ctx.decisions, probed_rays=int(len(t)),
+                                 **measured):
+        return layers
+    return SkyboxLayers(layers.center, layers.half_sizes, layers.resolution, SkyboxGround(up, heights))
