@@ -166,4 +166,24 @@ def test_a_tangled_level_set_is_meshed_from_the_depth_maps(monkeypatch):
     assert mesh.stats["level_set_defect"] == "tangled" and mesh.stats["surface_from_depths"] is True
     assert mesh.stats["mc_surface_from"] == "fused depth maps" and mesh.stats["level_set_folded"] == 0.5
     r = np.linalg.norm(mesh.vertices, axis=1)
-    assert abs(np.median(r) - RADIUS) < 0.03
+    assert 0 < mesh.stats["fused_outset"] < 0.03                           # half a voxel out (extract.py)
+    assert abs(np.median(r) - RADIUS - mesh.stats["fused_outset"]) < 0.03
+
+
+def test_a_fused_surface_is_moved_half_a_voxel_outwards_along_its_normals():
+    """``extract.outset_fused_surface``: every vertex of a sphere moves ``FUSED_OUTSET_VOXELS`` voxels out
+    along its normal (the fused surface's rims otherwise miss a pixel against the field's silhouette), faces and
+    uvs untouched; without a voxel size nothing moves."""
+    from neuras_distill.geometry.extract import FUSED_OUTSET_VOXELS, outset_fused_surface
+    from neuras_distill.geometry.marching import marching_cubes_field
+    from neuras_distill.scenes.analytic import SphereSDF
+
+    sphere = marching_cubes_field(SphereSDF(radius=RADIUS), 40)
+    voxel = float(sphere.stats["voxel_size"])
+    moved = outset_fused_surface(sphere)
+    grown = np.linalg.norm(moved.vertices, axis=1) - np.linalg.norm(sphere.vertices, axis=1)
+    assert FUSED_OUTSET_VOXELS == 0.5 and moved.stats["fused_outset"] == pytest.approx(0.5 * voxel)
+    assert grown == pytest.approx(np.full_like(grown, 0.5 * voxel), abs=0.02 * voxel)
+    assert np.array_equal(moved.faces, sphere.faces)
+    sphere.stats.pop("voxel_size")
+    assert outset_fused_surface(sphere) is sphere

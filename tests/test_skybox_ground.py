@@ -8,6 +8,7 @@ import pytest
 import torch
 
 import neuras_distill as nd
+from neuras_distill.pipeline.rules import GROUND_MIN_HITS
 from neuras_distill.render.cameras import Cameras
 from neuras_distill.render.far_region import FarRegion
 
@@ -58,7 +59,7 @@ def test_a_ground_to_the_horizon_cuts_the_skyboxes_at_its_height(tmp_path, monke
     heights = np.asarray(decision["measured"]["heights"])
     sky = result.report["skybox"]
     assert sky["ground"]["normal"] == pytest.approx([0.0, 0.0, 1.0], abs=1e-3)
-    filled = np.asarray(decision["measured"]["hits_per_layer"]) >= 16
+    filled = np.asarray(decision["measured"]["hits_per_layer"]) >= GROUND_MIN_HITS
     # in the ground's 0.1-thick slab (relative to the skyboxes' centre): its top near, deeper far away, where
     # the probe's samples (uniform in disparity) are long
     top = GROUND_Z - sky["center"][2]
