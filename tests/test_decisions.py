@@ -199,7 +199,7 @@ def test_skyboxes_that_hold_a_ground_lie_on_it_at_each_rings_median_height():
 
     hits = np.concatenate([ring(0.5, 4.0, -1.0, 200), ring(4.0, 8.0, -1.5, 200), ring(8.0, 16.0, -3.0, 5)])
     heights, measured = ground_heights(hits, np.array([0.0, 0.0, 1.0]), radii, np.array([0.5, 0.7]))
-    assert heights.tolist() == pytest.approx([-1.0, -1.5, -1.5])              # the outer ring borrows
+    assert heights.tolist() == pytest.approx([-1.0, -1.5, -1.5])              # the outer ring takes its neighbour's
     assert measured["hits_per_layer"][2] < GROUND_MIN_HITS
     high, _ = ground_heights(ring(0.5, 4.0, 2.0, 200), np.array([0.0, 0.0, 1.0]), radii, np.array([0.5, 0.7]))
     assert (high < 0.5).all()                                                   # kept under the cameras
