@@ -187,3 +187,57 @@ def test_a_fused_surface_is_moved_half_a_voxel_outwards_along_its_normals():
     assert np.array_equal(moved.faces, sphere.faces)
     sphere.stats.pop("voxel_size")
     assert outset_fused_surface(sphere) is sphere
+
+
+class HazySlab:
+    """A floor of haze, 0.1 thick: opacity 0.33 seen from straight above, 0.6 at 20 degrees (a partly trained
+    nerfacto ground is such a haze, opaque in some views and not in others)."""
+
+    kind = "density"
+    aabb = torch.tensor([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]])
+
+    def geometry(self, x):
+        return 4.0 * (x[:, 2].abs() < 0.05).float()
+
+    def radiance(self, x, d):
+        return torch.full_like(x, 0.5)
+
+
+def _floor_cover(mesh, half=0.3, bins=12) -> float:
+    """Share of a (bins x bins) grid over the floor's central square holding a mesh vertex near z = 0."""
+    v = mesh.vertices[(np.abs(mesh.vertices[:, 2]) < 0.15) & (np.abs(mesh.vertices[:, :2]) < half).all(1)]
+    filled, _, _ = np.histogram2d(v[:, 0], v[:, 1], bins=bins, range=[[-half, half], [-half, half]])
+    return float((filled > 0).mean())
+
+
+@pytest.mark.slow
+def test_a_hazy_floor_is_a_surface_where_some_views_see_it_faint():
+    """``faint``: pixels above the faint level vote for a surface at their fringe depth, not for free space,
+    so a floor opaque only at grazing views is meshed (``extract.FAINT_SURFACE_OPACITY``)."""
+    field = HazySlab()
+    cams = Cameras.orbit((0, 0, 0), 1.4, 12, width=40, height=40, fov_deg=40.0, elevation_deg=(15.0, 85.0))
+    teacher = VolumeRenderer(field, num_steps=192)
+    outs = [teacher.render(cams, i, crossings=True) for i in range(len(cams))]
+    surface, fringe, opacity = (np.stack([o[k] for o in outs]) for k in ("surface_depth", "fringe_depth", "opacity"))
+    assert (opacity > 0.5).mean() > 0.1 and ((opacity > 0.3) & (opacity <= 0.5)).mean() > 0.1   # both kinds
+    spec = grid_spec(field.aabb, 40)
+    covers = []
+    for faint in (None, (fringe, 0.3)):
+        sdf, _ = fused_depth_sdf(spec.origin, spec.spacing, spec.shape, cams, surface, opacity,
+                                 truncation=6 * float(spec.spacing.max()), faint=faint)
+        covers.append(_floor_cover(marching_cubes_grid(sdf, spec.origin, spec.spacing, "sdf", 0.0)))
+    assert covers[0] < 0.2 and covers[1] > 0.95, covers
+
+
+def test_faint_regions_keep_a_haze_and_drop_a_silhouettes_one_pixel_band():
+    from neuras_distill.geometry.depth_fusion import FAINT_MIN_WIDTH_PX, faint_regions
+
+    opacity = np.zeros((20, 20), dtype=np.float32)
+    opacity[2:10, 2:10] = 0.4                      # a haze 8 pixels wide
+    opacity[12:18, 12:18] = 1.0                    # an object...
+    opacity[11, 12:18] = 0.4                       # ...whose silhouette covers a row of pixels in part
+    opacity[5, 15] = 0.45                          # one faint speck
+    mask = faint_regions(opacity, 0.3, 0.5)
+    assert FAINT_MIN_WIDTH_PX >= 2
+    assert mask[2:10, 2:10].all() and mask.sum() == 64
+    assert not mask[11].any() and not mask[5, 15] and not mask[12:18, 12:18].any()

@@ -7,7 +7,15 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import require
-from ...geometry.extract import FUSED_OUTSET_VOXELS, SHELL_TEXEL_SCALE, Surface, extract_surface, unwrap_surface
+from ...geometry.depth_fusion import FAINT_MIN_WIDTH_PX
+from ...geometry.extract import (
+    FAINT_SURFACE_OPACITY,
+    FUSED_OUTSET_VOXELS,
+    SHELL_TEXEL_SCALE,
+    Surface,
+    extract_surface,
+    unwrap_surface,
+)
 from ...geometry.unwrap import atlas_shape
 from ...neural.shader_inputs import ShaderInputs
 from .. import choices, rules
@@ -92,7 +100,8 @@ def extract(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, enclose
                                field_depth=(teacher.surface_depths, teacher.fringe_depths, teacher.opacities))
 
     key = digest("surface", ctx.keys["teacher"], settings(g, ("cull_back_faces",)), trial_side, enclose,
-                 "local frame", ctx.origin.tolist(), "fused outset", FUSED_OUTSET_VOXELS)
+                 "local frame", ctx.origin.tolist(), "fused outset", FUSED_OUTSET_VOXELS,
+                 "faint surface", FAINT_SURFACE_OPACITY, FAINT_MIN_WIDTH_PX)
     return ctx.cached("surface", key, compute, Surface.save, Surface.load)
 
 
