@@ -214,3 +214,18 @@ def test_skyboxes_that_hold_a_ground_lie_on_it_at_each_rings_median_height():
     assert kept.kept and kept.measured["heights"] == pytest.approx([-1.0, -1.5, -1.5])
     assert [item.kept for item in left] == [False, False, False]
     assert "haze" in left[1].reason
+
+
+def test_a_surface_from_fused_depths_says_how_much_haze_it_took_as_surface():
+    """``choices.surface_source``: the fused surface's decision names the share of training pixels taken as a
+    faint surface (``depth_fusion.faint_regions``), when fusion measured it."""
+    from neuras_distill.pipeline.choices import Decisions, surface_source
+
+    stats = dict(level_set_missed=0.036, fused_depths_missed=0.009, surface_from_depths=True)
+    record = Decisions()
+    surface_source({**stats, "fused_faint_pixels": 0.125}, record)
+    surface_source(stats, record)
+    with_haze, without = record.items
+    assert with_haze.kept and with_haze.measured["fused_faint_pixels"] == pytest.approx(12.5)
+    assert "12.5% of the training pixels" in with_haze.reason and "3.6%" in with_haze.reason
+    assert "faint" not in without.reason and "fused_faint_pixels" not in without.measured

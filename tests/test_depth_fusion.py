@@ -223,9 +223,10 @@ def test_a_hazy_floor_is_a_surface_where_some_views_see_it_faint():
     spec = grid_spec(field.aabb, 40)
     covers = []
     for faint in (None, (fringe, 0.3)):
-        sdf, _ = fused_depth_sdf(spec.origin, spec.spacing, spec.shape, cams, surface, opacity,
-                                 truncation=6 * float(spec.spacing.max()), faint=faint)
+        sdf, stats = fused_depth_sdf(spec.origin, spec.spacing, spec.shape, cams, surface, opacity,
+                                     truncation=6 * float(spec.spacing.max()), faint=faint)
         covers.append(_floor_cover(marching_cubes_grid(sdf, spec.origin, spec.spacing, "sdf", 0.0)))
+        assert (stats["fused_faint_pixels"] > 0.1) == (faint is not None), stats
     assert covers[0] < 0.2 and covers[1] > 0.95, covers
 
 

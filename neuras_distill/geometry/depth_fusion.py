@@ -47,7 +47,8 @@ def fused_depth_sdf(origin, spacing, shape, cameras, depths: np.ndarray, opaciti
         faint: optional ((N, H, W) depths, level): a pixel whose opacity exceeds ``level`` but not ``opaque``
             is a faint surface at that depth (the fringe depth: where its opacity starts) instead of free space.
     Returns:
-        ((R0, R1, R2) float32 SDF, stats {"fused_views", "fused_weighted_fraction", "fused_hidden_fraction"}).
+        ((R0, R1, R2) float32 SDF, stats {"fused_views", "fused_weighted_fraction", "fused_hidden_fraction",
+        "fused_faint_pixels": the share of the views' pixels taken as a faint surface}).
     """
     origin = np.asarray(origin, dtype=np.float64)
     spacing = np.asarray(spacing, dtype=np.float64)
@@ -58,11 +59,14 @@ def fused_depth_sdf(origin, spacing, shape, cameras, depths: np.ndarray, opaciti
     behind = np.zeros(total, dtype=bool)
     axes = [origin[k] + spacing[k] * np.arange(shape[k]) for k in range(3)]
     t = float(truncation)
+    faint_pixels = 0
     for i in range(len(cameras)):
         # depth of the pixel's surface; +inf where it is not opaque (everything along that ray is free)
         own = np.where(opacities[i] > opaque, depths[i], np.inf)
         if faint is not None:
-            own = np.where(faint_regions(opacities[i], faint[1], opaque), faint[0][i], own)
+            haze = faint_regions(opacities[i], faint[1], opaque)
+            faint_pixels += int(haze.sum())
+            own = np.where(haze, faint[0][i], own)
         own = torch.from_numpy(own.astype(np.float64).reshape(-1))
         for sel_np, pixel, dist in _projections(cameras, i, axes, shape, total, chunk):
             d = own[pixel]
@@ -73,7 +77,8 @@ def fused_depth_sdf(origin, spacing, shape, cameras, depths: np.ndarray, opaciti
             behind[sel_np[(~near).numpy()]] = True
     sdf = np.where(weight > 0, acc / np.maximum(weight, 1.0), np.where(behind, -t, t)).astype(np.float32)
     stats = {"fused_views": len(cameras), "fused_weighted_fraction": float((weight > 0).mean()),
-             "fused_hidden_fraction": float(((weight == 0) & behind).mean())}
+             "fused_hidden_fraction": float(((weight == 0) & behind).mean()),
+             "fused_faint_pixels": faint_pixels / max(int(np.prod(opacities.shape)), 1)}
     return sdf.reshape(shape), stats
 
 

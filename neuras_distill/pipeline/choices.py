@@ -400,9 +400,14 @@ def surface_source(stats: dict, record: Decisions) -> None:
                                     f"folded, {fused:.1f}% of the opaque training pixels missed)", **measured)
         return
     if stats.get("surface_from_depths"):
+        faint = ""
+        if "fused_faint_pixels" in stats:
+            measured["fused_faint_pixels"] = 100 * stats["fused_faint_pixels"]
+            faint = (f" ({measured['fused_faint_pixels']:.1f}% of the training pixels, faint but in hazy regions, "
+                     f"count as surface there)")
         record.keep("surface from fused depths", f"the density's level set missed {missed:.1f}% of the "
                            f"opaque training pixels (a perforated surface); the teacher's fused surface depths "
-                           f"miss {fused:.1f}%", **measured)
+                           f"miss {fused:.1f}%{faint}", **measured)
     else:
         record.leave_out("surface from fused depths", f"the level set missed {missed:.1f}% of the opaque "
                                 f"training pixels but the fused depths missed more ({fused:.1f}%)", **measured)
