@@ -87,8 +87,6 @@ def faint_regions(opacity: np.ndarray, level: float, opaque: float) -> np.ndarra
     :data:`FAINT_MIN_WIDTH_PX` wide (a morphological opening): a haze seen faint, not the one-pixel band where a
     silhouette covers a pixel in part. ``opacity``: (H, W)."""
     mask = (opacity > level) & (opacity <= opaque)
-    if FAINT_MIN_WIDTH_PX <= 1:
-        return mask
     return ndimage.binary_opening(mask, structure=np.ones((FAINT_MIN_WIDTH_PX, FAINT_MIN_WIDTH_PX), dtype=bool))
 
 
