@@ -158,6 +158,8 @@ def serve_requests(field, rank: int, world: int, take_payload) -> None:
         box = [None]
         dist.broadcast_object_list(box, src=0)
         request = box[0]
+        if request is None or isinstance(request, Abort):
+            dist.barrier()                 # the last message: every rank leaves the group together (see _leave)
         if request is None:
             break
         if isinstance(request, Abort):
@@ -185,6 +187,15 @@ def _worker(index: int, field, world: int, port: int, timeout_s: float, queues) 
         serve_requests(field, rank, world, queues[index].get)
     finally:
         dist.destroy_process_group()
+
+
+def _leave(dist, last) -> None:
+    """Rank 0: send the other ranks ``last`` (None: done; an :class:`Abort`), wait until every rank has it (a
+    barrier), then leave the group. Without the barrier rank 0 could close its sockets while a rank still reads
+    the message, and gloo aborts that rank at exit (SIGABRT, "terminate called without an active exception")."""
+    dist.broadcast_object_list([last], src=0)
+    dist.barrier()
+    dist.destroy_process_group()
 
 
 class RenderPool:
@@ -363,8 +374,7 @@ class RenderPool:
         if getattr(self, "_dist", None) is None:
             return
         try:
-            self._dist.broadcast_object_list([None], src=0)
-            self._dist.destroy_process_group()
+            _leave(self._dist, None)
             if self._context is not None:
                 self._context.join(timeout=60)
         except Exception:
@@ -393,9 +403,7 @@ class RenderPool:
             import contextlib
 
             with contextlib.suppress(Exception):
-                self._dist.broadcast_object_list([Abort(str(exc).splitlines()[0] if str(exc) else kind.__name__)],
-                                                 src=0)
-                self._dist.destroy_process_group()
+                _leave(self._dist, Abort(str(exc).splitlines()[0] if str(exc) else kind.__name__))
             self._dist = None
         self.close()
 
