@@ -194,6 +194,24 @@ def _source(args) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line; returns the exit code. A rank of a torchrun / srun launch ends its process here
+    (``parallel.exit_rank``: gloo's threads can abort the interpreter's shutdown)."""
+    code = _main(argv)
+    from .errors import BadInputError
+    from .pipeline.torchrun import launch_from_env
+
+    try:
+        launched = launch_from_env() is not None
+    except BadInputError:            # a broken launch environment: _main said so, and no group was formed
+        launched = False
+    if launched:
+        from .pipeline.parallel import exit_rank
+
+        exit_rank(code)
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     args.argv = argv

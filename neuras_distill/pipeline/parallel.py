@@ -158,8 +158,6 @@ def serve_requests(field, rank: int, world: int, take_payload) -> None:
         box = [None]
         dist.broadcast_object_list(box, src=0)
         request = box[0]
-        if request is None or isinstance(request, Abort):
-            dist.barrier()                 # the last message: every rank leaves the group together (see _leave)
         if request is None:
             break
         if isinstance(request, Abort):
@@ -187,15 +185,21 @@ def _worker(index: int, field, world: int, port: int, timeout_s: float, queues) 
         serve_requests(field, rank, world, queues[index].get)
     finally:
         dist.destroy_process_group()
+    exit_rank(0)
 
 
-def _leave(dist, last) -> None:
-    """Rank 0: send the other ranks ``last`` (None: done; an :class:`Abort`), wait until every rank has it (a
-    barrier), then leave the group. Without the barrier rank 0 could close its sockets while a rank still reads
-    the message, and gloo aborts that rank at exit (SIGABRT, "terminate called without an active exception")."""
-    dist.broadcast_object_list([last], src=0)
-    dist.barrier()
-    dist.destroy_process_group()
+def exit_rank(code: int) -> None:
+    """End this process (a rank of a group) with ``code`` now, its output flushed, without the interpreter's
+    shutdown. gloo's worker threads may still be releasing the last collective's tensors, which takes the GIL;
+    a thread that asks for the GIL while the interpreter shuts down is unwound, and the unwinding aborts the
+    process (SIGABRT, "terminate called without an active exception") after its work is done."""
+    import contextlib
+    import sys
+
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
 
 
 class RenderPool:
@@ -374,7 +378,8 @@ class RenderPool:
         if getattr(self, "_dist", None) is None:
             return
         try:
-            _leave(self._dist, None)
+            self._dist.broadcast_object_list([None], src=0)
+            self._dist.destroy_process_group()
             if self._context is not None:
                 self._context.join(timeout=60)
         except Exception:
@@ -403,7 +408,9 @@ class RenderPool:
             import contextlib
 
             with contextlib.suppress(Exception):
-                _leave(self._dist, Abort(str(exc).splitlines()[0] if str(exc) else kind.__name__))
+                self._dist.broadcast_object_list([Abort(str(exc).splitlines()[0] if str(exc) else kind.__name__)],
+                                                 src=0)
+                self._dist.destroy_process_group()
             self._dist = None
         self.close()
 
