@@ -110,3 +110,35 @@ def test_the_skyboxes_share_of_content_inside_the_box_is_recorded():
     entry = next(d for d in record.to_json() if d["component"] == "skybox pixels inside the box")
     assert entry["measured"]["sky_inside_box_pixels"] == 5
     assert entry["measured"]["sky_inside_box_fraction"] == pytest.approx(5 / 15)
+
+
+def test_a_soft_edge_with_something_opaque_behind_it_is_given_back_to_the_skyboxes():
+    """Near misses by their fringe alone (under 0.5 opacity inside the box, within 2% of the width of the mesh)
+    are asked whether their whole ray reaches 0.5 beyond the box; those that do show mostly what lies behind,
+    and the skyboxes learn them. Near misses by a surface inside the box are never asked."""
+    from neuras_distill.pipeline.choices import Decisions, sky_training_pixels
+
+    h, w = 6, 100                                            # the fringe's reach: 2 pixels
+    surface = np.zeros((1, h, w), np.float32)
+    surface[0, 0, 51] = 5.0                                  # a surface inside the box at z = 0: a near miss
+    fringe = np.full((1, h, w), 5.0, np.float32)            # a fringe inside the box everywhere
+    coverage = np.zeros((1, h, w), bool)
+    coverage[0, :, :50] = True                               # the mesh: the left half
+    asked = []
+
+    def seen_through(candidates):
+        asked.append(candidates.copy())
+        behind = np.zeros_like(candidates)
+        behind[0, 2:, :] = candidates[0, 2:, :]              # the ground beyond the box: rows 2 and below
+        return behind
+
+    box = torch.tensor([[-2.0, -2.0, -1.0], [2.0, 2.0, 1.0]])
+    plain = sky_training_pixels(surface, fringe, coverage, *_rays(h, w), box, Decisions())
+    record = Decisions()
+    learnt = sky_training_pixels(surface, fringe, coverage, *_rays(h, w), box, record, seen_through=seen_through)
+    assert not plain[0, :, 50:52].any() and plain[0, :, 52:].all()      # beside the mesh: fringe near misses
+    assert not asked[0][0, 0, 51] and asked[0][0, 1, 51] and asked[0][0, :, 50].all()
+    assert learnt[0, 2:, 50:52].all() and not learnt[0, :2, 50:52].any()  # given back where something lies behind
+    assert not learnt[:, :, :50].any() and learnt[0, :, 52:].all()
+    entry = next(d for d in record.to_json() if d["component"] == "skybox training behind soft edges")
+    assert entry["measured"]["seen_through_pixels"] == int((learnt & ~plain).sum()) == 8

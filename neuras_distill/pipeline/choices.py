@@ -135,7 +135,7 @@ def skybox_ground(share_below: float, hit_share: float | None, heights: np.ndarr
 
 def sky_training_pixels(surface_depths: np.ndarray, fringe_depths: np.ndarray, coverage: np.ndarray,
                         origins: np.ndarray, dirs: np.ndarray, aabb, record: Decisions,
-                        opacities: np.ndarray | None = None) -> np.ndarray:
+                        opacities: np.ndarray | None = None, seen_through=None) -> np.ndarray:
     """(N, H, W) bool: the uncovered training pixels the skyboxes learn from: all but the near misses
     (``rules.near_miss_pixels``: the field shows a surface, or the fringe of one beside the mesh, inside its
     foreground box that the mesh missed). ``surface_depths``, ``fringe_depths`` (N, H, W): where the field's
@@ -143,8 +143,20 @@ def sky_training_pixels(surface_depths: np.ndarray, fringe_depths: np.ndarray, c
     Leaving them out is recorded with their share of the pixels. With ``opacities`` (N, H, W), the field's opacity
     inside its box, what the skyboxes still take over inside the box is recorded too: the share of their pixels
     whose box content is at least ``rules.SKY_INSIDE_BOX_OPACITY`` opaque (content the mesh missed that they
-    paint from far away, where it slides against its neighbours as the camera moves)."""
+    paint from far away, where it slides against its neighbours as the camera moves). ``seen_through``, when
+    given, maps the (N, H, W) bool near misses by their fringe alone (the field under 0.5 opacity inside the box)
+    to those whose whole ray reaches 0.5 beyond the box (``rules.SEE_THROUGH_PROBE_RAYS``): they show mostly what
+    lies behind, and the skyboxes learn them."""
     near = rules.near_miss_pixels(surface_depths, fringe_depths, coverage, origins, dirs, aabb)
+    given_back = 0
+    if seen_through is not None:
+        behind = seen_through(near & ~(np.asarray(surface_depths) > 0))
+        given_back = int(behind.sum())
+        near = near & ~behind
+        record.keep("skybox training behind soft edges",
+                    f"{given_back} training pixels beside the mesh are under 0.5 opacity inside the foreground box "
+                    "and reach it beyond: they show mostly what lies behind (the ground past the box's floor, the "
+                    "background through a soft rim), so the skyboxes learn them", seen_through_pixels=given_back)
     uncovered = ~coverage
     if opacities is not None and uncovered.any():
         learnt = uncovered & ~near

@@ -50,9 +50,11 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
     skybox, sky_origins, sky_pixels = None, None, None
     if use_skybox:
         sb = cfg.skybox
-        sky_pixels = choices.sky_training_pixels(teacher.surface_depths, teacher.fringe_depths, gbuffer.coverage,
-                                                 train.centers.numpy(), dirs[..., :3], ctx.field.aabb,
-                                                 ctx.decisions, opacities=teacher.opacities)
+        region = getattr(ctx.field, "far_region", None)
+        sky_pixels = choices.sky_training_pixels(
+            teacher.surface_depths, teacher.fringe_depths, gbuffer.coverage, train.centers.numpy(), dirs[..., :3],
+            ctx.field.aabb, ctx.decisions, opacities=teacher.opacities,
+            seen_through=None if region is None else lambda fringe: _opaque_beyond_box(ctx, train, dirs, fringe))
         layers = views.sky_layers
         learnt = ~gbuffer.coverage if sky_pixels is None else sky_pixels
         up = train.c2w[:, :3, 1].double().mean(0).numpy()
@@ -107,18 +109,9 @@ def _on_the_ground(ctx: RunContext, train, dirs, learnt, up: np.ndarray, share_b
         choices.skybox_ground(share_below, None, np.zeros(0), ctx.decisions)
         return layers
     limit = -np.sin(np.radians(rules.SKY_HORIZON_DEG))
-    picked = [np.flatnonzero(np.asarray(learnt[i]).reshape(-1)
-                             & (np.asarray(dirs[i, ..., :3]).reshape(-1, 3) @ up < limit)) for i in range(len(train))]
-    total = sum(len(p) for p in picked)
-    stride = max(1, -(-total // rules.GROUND_PROBE_RAYS))
-    origins, directions, seen = [], [], 0
-    for i, p in enumerate(picked):
-        chosen = p[(-seen) % stride::stride]
-        seen += len(p)
-        directions.append(np.asarray(dirs[i, ..., :3]).reshape(-1, 3)[chosen].astype(np.float64))
-        origins.append(np.repeat(train.centers[i].double().numpy()[None], len(chosen), axis=0))
-    o = torch.from_numpy(np.concatenate(origins) - ctx.origin)          # the run's local frame: small numbers
-    d = torch.from_numpy(np.concatenate(directions))
+    picked = [np.asarray(learnt[i]).reshape(-1) & (np.asarray(dirs[i, ..., :3]).reshape(-1, 3) @ up < limit)
+              for i in range(len(train))]
+    o, d, _ = _probe_rays(ctx, train, dirs, picked, rules.GROUND_PROBE_RAYS)
     t = opaque_depths(ctx.local_field, region, o, d, steps=rules.GROUND_PROBE_STEPS)
     reached = torch.isfinite(t)
     hits = (o[reached] + t[reached, None] * d[reached]).numpy() + (ctx.origin - layers.center)
@@ -129,3 +122,43 @@ def _on_the_ground(ctx: RunContext, train, dirs, learnt, up: np.ndarray, share_b
                                  **measured):
         return layers
     return SkyboxLayers(layers.center, layers.half_sizes, layers.resolution, SkyboxGround(up, heights))
+
+
+def _probe_rays(ctx: RunContext, train, dirs, picked: list[np.ndarray], limit: int
+                ) -> tuple[torch.Tensor, torch.Tensor, list[np.ndarray]]:
+    """At most ``limit`` of the training pixels marked in ``picked`` (per view, (H*W,) bool), evenly over them
+    in view order: (origins (R, 3) float64 in the run's local frame (``ctx.origin``: small numbers), directions
+    (R, 3) float64 world, the chosen pixel numbers of each view)."""
+    chosen = [np.flatnonzero(p) for p in picked]
+    stride = max(1, -(-sum(len(p) for p in chosen) // limit))
+    origins, directions, seen = [], [], 0
+    for i, p in enumerate(chosen):
+        chosen[i] = p[(-seen) % stride::stride]
+        seen += len(p)
+        directions.append(np.asarray(dirs[i, ..., :3]).reshape(-1, 3)[chosen[i]].astype(np.float64))
+        origins.append(np.repeat(train.centers[i].double().numpy()[None], len(chosen[i]), axis=0))
+    o = torch.from_numpy(np.concatenate(origins) - ctx.origin)
+    return o, torch.from_numpy(np.concatenate(directions)), chosen
+
+
+def _opaque_beyond_box(ctx: RunContext, train, dirs, candidates: np.ndarray) -> np.ndarray:
+    """(N, H, W) bool: the ``candidates`` (N, H, W) bool training pixels whose whole ray, marched through the
+    field's far region, first reaches opacity 0.5 outside the foreground box grown by
+    ``rules.NEAR_MISS_BOX_MARGIN`` of its diagonal (at most ``rules.SEE_THROUGH_PROBE_RAYS`` of them probed)."""
+    n, h, w = candidates.shape
+    out = np.zeros((n, h * w), bool)
+    if not candidates.any():
+        return out.reshape(n, h, w)
+    o, d, chosen = _probe_rays(ctx, train, dirs, [candidates[i].reshape(-1) for i in range(n)],
+                               rules.SEE_THROUGH_PROBE_RAYS)
+    t = opaque_depths(ctx.local_field, ctx.field.far_region, o, d, steps=rules.SEE_THROUGH_PROBE_STEPS)
+    box = torch.as_tensor(ctx.field.aabb).double().reshape(2, 3).cpu().numpy() - ctx.origin
+    grow = rules.NEAR_MISS_BOX_MARGIN * float(np.linalg.norm(box[1] - box[0]))
+    reached = torch.isfinite(t).numpy()
+    hit = (o + torch.where(torch.isfinite(t), t, torch.zeros_like(t))[:, None] * d).numpy()
+    beyond = reached & ~np.all((hit >= box[0] - grow) & (hit <= box[1] + grow), axis=1)
+    start = 0
+    for i, pixels in enumerate(chosen):
+        out[i, pixels] = beyond[start:start + len(pixels)]
+        start += len(pixels)
+    return out.reshape(n, h, w)
