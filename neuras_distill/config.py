@@ -282,9 +282,11 @@ class SkyboxConfig:
     """Texels along each face side of each layer."""
     feature_dim: int = 8
     """Channels per skybox texel."""
-    num_codes: int = 4096
-    """Codebook size of the skyboxes (their own codebook, as in the paper). 4096, not 256: a sky is a smooth
-    gradient, which 256 codes mottle (docs/decisions.md "Skyboxes")."""
+    num_codes: int = 0
+    """Size of the skyboxes' codebook (their own, as in the paper). 0 (default): 4096, or 16384 when they hold
+    ground (``pipeline.rules.SKY_CODES``; the same 20% below the horizon that asks for 8 layers): a sky is a
+    smooth gradient, which 256 codes mottle, and a ground to the horizon adds a texture's worth of features that
+    4096 codes lose 2-3 dB on (docs/decisions.md "Skyboxes")."""
     hidden: int = 16
     """Hidden units of the skybox MLP."""
     ablation: bool = True
@@ -299,8 +301,8 @@ class SkyboxConfig:
         require(not (sb.near and sb.far) or sb.far > sb.near or sb.layers == 1,
                 f"skybox layers must nest: far ({sb.far}) must be larger than near ({sb.near})")
         require(2 <= sb.resolution <= 4096, f"skybox resolution must be in 2..4096, got {sb.resolution}")
-        require(1 <= sb.feature_dim <= 32 and 2 <= sb.num_codes <= 65535 and sb.hidden >= 1,
-                "skybox feature_dim must be in 1..32, num_codes in 2..65535, hidden >= 1")
+        require(1 <= sb.feature_dim <= 32 and (sb.num_codes == 0 or 2 <= sb.num_codes <= 65535) and sb.hidden >= 1,
+                "skybox feature_dim must be in 1..32, num_codes in 2..65535 (0: automatic), hidden >= 1")
         return self
 
 

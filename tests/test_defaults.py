@@ -21,8 +21,7 @@ CASES = [
      {"feature_dim": "feature_dim", "num_codes": "num_codes", "hidden": "hidden", "num_layers": "num_layers",
       "use_vq": "quantize", "quantize_above": "quantize_above", "coarse_factor": "coarse_factor"}),
     (MLPShader.__init__, TextureConfig(), {"hidden": "hidden", "num_layers": "num_layers"}),
-    (SkyboxModel.__init__, SkyboxConfig(), {"feature_dim": "feature_dim", "num_codes": "num_codes",
-                                            "hidden": "hidden"}),
+    (SkyboxModel.__init__, SkyboxConfig(), {"feature_dim": "feature_dim", "hidden": "hidden"}),
     (unwrap_surface, GeometryConfig(), {"unwrap_timeout_s": "unwrap_timeout_s"}),
     (unwrap, GeometryConfig(), {"timeout_s": "unwrap_timeout_s"}),
     (VolumeRenderer.__init__, TeacherConfig(), {"num_steps": "num_steps", "far_steps": "far_steps",
@@ -48,3 +47,11 @@ def test_a_function_that_takes_a_section_whole_defaults_to_the_configuration(fun
     assert params["config"].default == section
     own = set(section.__dataclass_fields__) & set(params) - planned
     assert not own, f"{function.__qualname__} reads {sorted(own)} from its section, not from its own arguments"
+
+
+def test_the_skybox_models_codebook_is_the_automatic_one_for_a_sky():
+    """``skybox.num_codes`` 0 is automatic (``pipeline.rules.SKY_CODES``): the model's default is a sky's."""
+    from neuras_distill.pipeline.rules import SKY_CODES
+
+    assert SkyboxConfig().num_codes == 0
+    assert inspect.signature(SkyboxModel.__init__).parameters["num_codes"].default == SKY_CODES[0]

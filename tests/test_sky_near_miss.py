@@ -142,3 +142,15 @@ def test_a_soft_edge_with_something_opaque_behind_it_is_given_back_to_the_skybox
     assert not learnt[:, :, :50].any() and learnt[0, :, 52:].all()
     entry = next(d for d in record.to_json() if d["component"] == "skybox training behind soft edges")
     assert entry["measured"]["seen_through_pixels"] == int((learnt & ~plain).sum()) == 8
+
+
+def test_skyboxes_that_hold_ground_get_the_larger_codebook():
+    from neuras_distill.pipeline.choices import Decisions, skybox_codes
+    from neuras_distill.pipeline.rules import SKY_CODES, SKY_GROUND_SHARE
+
+    record = Decisions()
+    assert skybox_codes(SKY_GROUND_SHARE + 0.05, record) == SKY_CODES[1] == 16384
+    assert skybox_codes(SKY_GROUND_SHARE - 0.11, record) == SKY_CODES[0] == 4096     # the street: 9% below
+    kept, left = [d for d in record.to_json() if d["component"] == "a larger skybox codebook"]
+    assert kept["kept"] and kept["measured"]["codes"] == 16384
+    assert not left["kept"] and left["measured"]["codes"] == 4096

@@ -270,7 +270,7 @@ class SkyboxModel(nn.Module):
     """
 
     def __init__(self, layers: SkyboxLayers, feature_dim: int = SkyboxConfig.feature_dim,
-                 num_codes: int = SkyboxConfig.num_codes, hidden: int = SkyboxConfig.hidden) -> None:
+                 num_codes: int = 4096, hidden: int = SkyboxConfig.hidden) -> None:
         super().__init__()
         self.layers = layers
         h, w = layers.atlas_size

@@ -103,6 +103,24 @@ def skybox_layers(share_below: float, record: Decisions) -> int:
     return usual
 
 
+def skybox_codes(share_below: float, record: Decisions) -> int:
+    """The skyboxes' codebook size when ``skybox.num_codes`` is 0: ``rules.SKY_CODES[1]`` when ``share_below``
+    of their training pixels look below the horizon (at least ``rules.SKY_GROUND_SHARE``), else
+    ``rules.SKY_CODES[0]``."""
+    usual, more = rules.SKY_CODES
+    if share_below >= rules.SKY_GROUND_SHARE:
+        record.keep("a larger skybox codebook",
+                    f"{100 * share_below:.0f}% of the pixels the skyboxes learn look below the horizon: a ground to "
+                    f"the horizon is a texture, not a gradient; {more} codes instead of {usual}", codes=more,
+                    below_horizon_share=float(share_below))
+        return more
+    record.leave_out("a larger skybox codebook",
+                     f"{100 * share_below:.0f}% of the pixels the skyboxes learn look below the horizon: {usual} codes "
+                     f"hold a sky; {more} would cost k-means time and bundle size", codes=usual,
+                     below_horizon_share=float(share_below))
+    return usual
+
+
 def skybox_ground(share_below: float, hit_share: float | None, heights: np.ndarray, record: Decisions,
                   **measured) -> bool:
     """Whether skyboxes that hold ground lie on it (``neural.skybox.SkyboxGround``): when ``share_below`` of their

@@ -74,6 +74,11 @@ SKY_LAYERS = (4, 8)
 #: 23.36 -> 24.41 dB with 8 layers (12: 24.57, 16: 24.65), orbit360 (51%) 27.19 -> 27.68; the street (9%) 32.67
 #: -> 32.67 dB at 6000 steps for 17% more frame time (32.0 -> 37.6 ms at 960x540 on llvmpipe).
 SKY_GROUND_SHARE = 0.2
+#: The skyboxes' codebook when ``skybox.num_codes`` is 0: (for a sky, for skyboxes that hold ground). On
+#: checker360 (README CPU command) the sky above the horizon played at 34.0 dB against nerfstudio's renders with
+#: the skyboxes' continuous features and 30.5 with 4096 codes; 16384 took the frame 27.83 -> 28.44 dB for 18 s
+#: more k-means and 0.4 MB more bundle. 16384 is the most a sky codebook plays natively (it is never wrapped).
+SKY_CODES = (4096, 16384)
 SKY_HORIZON_DEG = 2.0
 
 

@@ -66,7 +66,8 @@ def gbuffer_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult, g
                                      near=float(layers.half_sizes[0]), far=float(layers.half_sizes[-1]),
                                      resolution=layers.resolution)
         layers = _on_the_ground(ctx, train, dirs, learnt, up, share, layers)
-        skybox = SkyboxModel(layers, feature_dim=sb.feature_dim, num_codes=sb.num_codes, hidden=sb.hidden)
+        codes = sb.num_codes or choices.skybox_codes(share, ctx.decisions)
+        skybox = SkyboxModel(layers, feature_dim=sb.feature_dim, num_codes=codes, hidden=sb.hidden)
         sky_origins = layers.relative(train.centers.double().numpy()).numpy()
     missed = ~gbuffer.coverage
     if use_skybox or (missed.any() and not ctx.background.constant):
