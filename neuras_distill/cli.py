@@ -144,11 +144,18 @@ def _max_texture_size(args) -> int:
     return n
 
 
+def _up_said(args) -> str:
+    """Which up an export turned onto +Y (``export/gltf_up.resolve_up``), for its closing line."""
+    from .export.gltf_up import resolve_up
+
+    return resolve_up(args.up, args.bundle)[1]
+
+
 def _export_gltf(args) -> int:
     from .export.gltf import export_gltf
 
-    out = export_gltf(args.bundle, args.out, _max_texture_size(args))
-    print(f"wrote {out} ({out.stat().st_size} bytes)")
+    out = export_gltf(args.bundle, args.out, _max_texture_size(args), args.up)
+    print(f"wrote {out} ({out.stat().st_size} bytes; up {_up_said(args)} turned onto glTF's +Y)")
     return 0
 
 
@@ -167,8 +174,9 @@ def _export_threejs(args) -> int:
     if not args.three:
         raise BadInputError("--format threejs needs --three THREE_DIR: the three.js package to copy "
                             "(node_modules/three of a local `npm install three`)")
-    out, version = export_threejs(args.bundle, args.out, args.three, _max_texture_size(args))
-    print(f"wrote {out} with three.js {version} (serve it with `python -m http.server` inside it, open index.html)")
+    out, version = export_threejs(args.bundle, args.out, args.three, _max_texture_size(args), args.up)
+    print(f"wrote {out} with three.js {version}, up {_up_said(args)} "
+          "(serve it with `python -m http.server` inside it, open index.html)")
     return 0
 
 

@@ -166,6 +166,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "`npm install three`; tested with 0.187)")
     p.add_argument("--out", required=True, help="output file or folder (gltf: a .glb path; web, threejs: a folder); an "
                                                 "existing one is replaced only when neuras-distill wrote it")
+    p.add_argument("--up", default="auto", metavar="AXIS",
+                   help="gltf, threejs: the capture's up axis in the bundle's frame, turned onto glTF's +Y by the "
+                        "scene's root node: auto (default: the run's cameras' mean up, snapped to an axis within "
+                        "15 degrees; +z without cameras.json), +x, -x, +y, -y, +z or -z")
     p.add_argument("--max-texture-size", default=None, metavar="N",
                    help="largest texture side the export writes, in texels (default 4096, a side WebGL2 browsers "
                         "hold in practice): a codebook is wrapped into more codes per row to fit; an atlas page above "

@@ -5,12 +5,14 @@ Runs inside Blender (``bpy``), not in the package's Python:
     blender -b --factory-startup --python scripts/gltf_blender_render.py -- scene.glb cameras.json OUT_PREFIX
 
 ``cameras.json`` is ``{"c2w": [N x 4 x 4], "fx": [...], "fy": [...], "cx": [...], "cy": [...], "width": W,
-"height": H, "background": [r, g, b]}`` in our world frame and OpenGL camera convention (``render/cameras.py``);
+"height": H, "background": [r, g, b]}`` in Blender's world frame (Z up) and OpenGL camera convention
+(``render/cameras.py``); for a +z-up capture that is the bundle's own frame, since the export turns +z onto glTF's
++Y and Blender's importer turns +Y back onto +Z;
 the background colour is as displayed (sRGB, 0..1). Writes ``OUT_PREFIX<i>.png`` (8-bit RGB) per camera and
 ``OUT_PREFIXobjects.json``: {mesh object name: its world translation in Blender's frame}.
 
-The importer (Blender's own io_scene_gltf2) turns glTF's +Y up into Blender's +Z up, so the cameras are turned
-the same way. Cycles renders (no OpenGL context needed) with the Standard view transform (Blender's default,
+The importer (Blender's own io_scene_gltf2) turns glTF's +Y up into Blender's +Z up; the cameras are placed as
+given, not turned. Cycles renders (no OpenGL context needed) with the Standard view transform (Blender's default,
 Filmic, would tone-map the texture), no dither, and a pixel filter 0.01 pixels wide: each pixel is the scene at
 its centre, as a rasterizer samples it. The importer makes KHR_materials_unlit an emission seen by camera rays,
 so a pixel shows the base-colour texture as stored.
@@ -21,10 +23,6 @@ import sys
 
 import bpy
 from mathutils import Matrix
-
-#: glTF (+Y up) to Blender (+Z up), as the importer converts: (x, y, z) -> (x, -z, y).
-Y_UP_TO_Z_UP = Matrix(((1, 0, 0, 0), (0, 0, -1, 0), (0, 1, 0, 0), (0, 0, 0, 1)))
-
 
 def srgb_to_linear(c: float) -> float:
     return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
@@ -43,7 +41,7 @@ def main(glb: str, cameras_json: str, prefix: str) -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_scene.gltf(filepath=glb)
     scene = bpy.context.scene
-    # where the importer placed each mesh (the glTF node's translation, turned into Blender's Z-up frame)
+    # where the importer placed each mesh (the glTF nodes' transforms, in Blender's Z-up frame)
     placed = {o.name: list(o.matrix_world.translation) for o in scene.objects if o.type == "MESH"}
     open(prefix + "objects.json", "w").write(json.dumps(placed))
     scene.render.engine = "CYCLES"
@@ -88,7 +86,7 @@ def main(glb: str, cameras_json: str, prefix: str) -> None:
         data.lens = fx * data.sensor_width / w
         data.shift_x = -(cx - 0.5 * w) / max(w, h)             # shifts are in units of the larger side
         data.shift_y = (cy - 0.5 * h) / max(w, h)
-        camera.matrix_world = Y_UP_TO_Z_UP @ Matrix(c2w)
+        camera.matrix_world = Matrix(c2w)
         scene.render.filepath = f"{prefix}{i}.png"
         bpy.ops.render.render(write_still=True)
 

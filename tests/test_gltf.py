@@ -194,8 +194,9 @@ def test_trimesh_opens_it_in_world_units_with_the_texture(tmp_path, kind):
     faces = bundle.mesh.faces[:bundle.mesh.core_faces] if bundle.mesh.core_faces else bundle.mesh.faces
     used = np.unique(faces)
     world = bundle.mesh.vertices[used].astype(np.float64) + ORIGIN
+    upright = world[:, [0, 2, 1]] * [1, 1, -1]        # no cameras beside the bundle: +z up, (x, y, z) -> (x, z, -y)
     assert len(geom.vertices) == len(used) and len(geom.faces) == len(faces)
-    np.testing.assert_allclose(scene.bounds, [world.min(0), world.max(0)], rtol=0, atol=1e-4)
+    np.testing.assert_allclose(scene.bounds, [upright.min(0), upright.max(0)], rtol=0, atol=1e-4)
     np.testing.assert_allclose(geom.visual.uv, np.c_[bundle.mesh.uvs[used, 0], 1 - bundle.mesh.uvs[used, 1]],
                                atol=1e-6)                                     # trimesh flips v to GL's
     image = np.asarray(geom.visual.material.baseColorTexture.convert("RGB"))

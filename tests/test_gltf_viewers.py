@@ -172,8 +172,8 @@ def test_blender_imports_the_glb_and_renders_its_plain_texture(exported, require
 
 
 def test_blender_places_a_utm_scene_at_its_origin(exported_utm, require_tool, tmp_path):
-    """The node's translation is the bundle's float64 origin; Blender's importer turns it Z-up -> its Y-up ->
-    (x, -z, y) as it turns the cameras. Blender keeps object and camera positions in float32 (0.5 apart at a
+    """The node's translation is the bundle's float64 origin under the root's +z -> +Y turn; Blender's importer
+    turns +Y back onto its +Z, so the mesh object sits at the origin in the bundle's own coordinates. Blender keeps object and camera positions in float32 (0.5 apart at a
     northing of 4.2e6), so its picture is not compared here; three.js composes the model-view matrix in doubles."""
     require_tool(blender_missing())
     glb, bundle, _, _, _ = exported_utm[0]
@@ -181,14 +181,13 @@ def test_blender_places_a_utm_scene_at_its_origin(exported_utm, require_tool, tm
     np.testing.assert_allclose(doc["nodes"][0]["translation"], bundle.origin, rtol=1e-12)
     _, placed = blender_render(exported_utm[0], tmp_path)
     (where,) = placed.values()
-    x, y, z = bundle.origin
-    np.testing.assert_allclose(where, [x, -z, y], rtol=1e-6)
+    np.testing.assert_allclose(where, bundle.origin, rtol=0, atol=1.0)    # float32 at 4.2e6: 0.5 a step
 
 
 def threejs_render(exported, require_tool, http_root, request, name: str) -> list[np.ndarray]:
-    """three.js's frames (GLTFLoader, headless Chromium) of the exported glb from its cameras."""
-    from neuras_distill.playback.projection import projection_matrix, view_matrix
-
+    """three.js's frames (GLTFLoader, headless Chromium) of the exported glb from its cameras, each a
+    PerspectiveCamera with three.js's default up (+Y) at the camera's position looking where it looks; positions
+    in the glTF scene's frame, where a +z-up capture's (x, y, z) is (x, z, -y)."""
     require_tool(None if (THREE / "build" / "three.module.js").is_file() else
                  f"three.js is not installed in {THREE.parent} (npm install --prefix .tools three; "
                  "scripts/setup.sh does)")
@@ -200,10 +199,16 @@ def threejs_render(exported, require_tool, http_root, request, name: str) -> lis
     (site / "three").symlink_to(THREE, target_is_directory=True)
     shutil.copy(ROOT / "scripts" / "gltf_three_render.html", site / "index.html")
     shutil.copy(glb, site / "scene.glb")
-    views = [{"view": view_matrix(cams.c2w[i].double().numpy()).reshape(-1).tolist(),
-              "projection": projection_matrix(float(cams.fx[i]), float(cams.fy[i]), float(cams.cx[i]),
-                                              float(cams.cy[i]), cams.width, cams.height, 0.05, 100.0)
-              .reshape(-1).tolist()} for i in range(len(cams))]
+    doc = json.loads(glb.read_bytes()[20:20 + int.from_bytes(glb.read_bytes()[12:16], "little")])
+    assert doc["nodes"][1]["extras"]["neuras_up"] == [0.0, 0.0, 1.0]         # the orbit cameras' up
+    turn = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])                       # +z onto +Y: (x, z, -y)
+    views = []
+    for i in range(len(cams)):
+        c2w = cams.c2w[i].double().numpy()
+        assert abs(float(cams.cx[i]) - cams.width / 2) < 1e-3 and abs(float(cams.cy[i]) - cams.height / 2) < 1e-3
+        views.append({"position": (turn @ c2w[:3, 3]).tolist(), "target": (turn @ (c2w[:3, 3] - c2w[:3, 2])).tolist(),
+                      "fov": float(np.degrees(2 * np.arctan(cams.height / (2 * float(cams.fy[i]))))),
+                      "near": 0.05, "far": 100.0})
     (site / "cameras.json").write_text(json.dumps({"width": cams.width, "height": cams.height, "views": views,
                                                    "background": [float(c) for c in bundle.background_color]}))
     browser.get(f"{base}/{name}/index.html")

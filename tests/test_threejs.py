@@ -302,8 +302,7 @@ gltf.scene.updateMatrixWorld(true);
 const box = new THREE.Box3().expandByObject(gltf.userData.neuras.meshes[0]);
 const centre = box.getCenter(new THREE.Vector3()), size = box.getSize(new THREE.Vector3()).length();
 const camera = new THREE.PerspectiveCamera(50, 4 / 3, size * 0.01, size * 10);
-camera.up.set(0, 0, 1);
-camera.position.copy(centre).add(new THREE.Vector3(0.9, -1.1, 0.6).multiplyScalar(size));
+camera.position.copy(centre).add(new THREE.Vector3(0.9, 0.6, 1.1).multiplyScalar(size));   // three.js's +Y up
 camera.lookAt(centre);
 camera.updateMatrixWorld();
 const plane = new THREE.Mesh(new THREE.PlaneGeometry(size * 4, size * 4),

@@ -6,12 +6,16 @@ The GLB is written by hand (a JSON chunk and one binary chunk: no glTF library);
 
 Layout (one buffer, the GLB's binary chunk; every buffer view starts on a 4-byte boundary)::
 
-    scenes[0] -> nodes[0] -> meshes[0]: one triangle primitive (one per atlas page); the node's
+    scenes[0] -> nodes[1] "neuras up": ``rotation`` (a unit quaternion; absent when the capture is already +Y
+        up) that turns the capture's up onto glTF's +Y (``export/gltf_up.py``, ``export --up``), so the scene
+        stands upright in every engine; ``extras.neuras_up`` is that up in the bundle's frame
+      -> nodes[0] "neuras bundle" -> meshes[0]: one triangle primitive (one per atlas page); the node's
         ``translation`` is ``bundle.origin`` (JSON doubles; absent when it is zero), so the mesh sits at its
-        world place while its float32 positions stay small
+        world place while its float32 positions stay small. Everything on this node (the mesh, the neural
+        extension, the skyboxes in it) is in the bundle's own frame: a point p of the field is at R @ p in
+        the glTF scene, R the root's rotation
         POSITION    float32 (V, 3), world units relative to ``bundle.origin``: the bundle's vertices as stored
-                    (a georeferenced scene keeps float32 precision around its centre); the world frame's axes as
-                    they are (no Y-up conversion: the bundle's frame is the field's)
+                    (a georeferenced scene keeps float32 precision around its centre), in the bundle's axes
         TEXCOORD_0  float32 (V, 2), the bundle's uvs unchanged: glTF's v runs down the image, and the texture's
                     first row is v = 0 (the bundle's convention), so no flip is needed
         indices     uint16 (V < 65535) or uint32
@@ -63,6 +67,7 @@ from ..bake.glb_reader import (
 )
 from ..errors import BadInputError
 from .gltf_neural import neural_material_extension
+from .gltf_up import parse_up, quaternion_xyzw, resolve_up, rotation_onto_y
 from .playable import playable_bundle
 from .texture_limit import DEFAULT_MAX_TEXTURE_SIZE, check_side, checked_limit
 
@@ -106,10 +111,12 @@ def _glb_mesh(bundle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.asarray(mesh.vertices, np.float32)[used], np.asarray(mesh.uvs, np.float32)[used], remap.reshape(-1, 3)
 
 
-def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> bytes:
+def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE,
+              up=(0.0, 1.0, 0.0)) -> bytes:
     """The GLB of ``bundle`` (a loaded :class:`~neuras_distill.bake.bundle.Bundle` with ``plain_rgb``) carrying
     ``files`` ({name: bytes}: the bundle folder's files, ``bundle.read_bundle_file_bytes``) losslessly; its
-    images (one per atlas page) at most ``max_texture_size`` texels a side, else BadInputError."""
+    images (one per atlas page) at most ``max_texture_size`` texels a side, else BadInputError. ``up`` (3,) is
+    the capture's up in the bundle's frame, which the root node turns onto +Y (``gltf_up.resolve_up``)."""
     from ..bake.bundle import PLAIN_FILE
 
     if PLAIN_FILE not in files:
@@ -169,15 +176,20 @@ def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_M
                                            "roughnessFactor": 1.0},
                   "doubleSided": not bool(bundle.manifest.get("cull_back_faces", False)),
                   "extensions": {"KHR_materials_unlit": {}}} for page in range(pages)]
+    rotation = rotation_onto_y(up)
+    up_node = {"name": "neuras up", "children": [0],
+               "extras": {"neuras_up": [float(x) for x in np.asarray(up, np.float64).reshape(3)]}}
+    if not np.allclose(rotation, np.eye(3), atol=1e-12):
+        up_node["rotation"] = quaternion_xyzw(rotation)
     doc = {
         "asset": {"version": "2.0", "generator": f"{GENERATOR} {__version__}"},
         "extensionsUsed": ["KHR_materials_unlit", EXTENSION, NEURAL_EXTENSION],
         "extensions": {EXTENSION: {"version": EXTENSION_VERSION, "files": file_views}},
         "scene": 0,
-        "scenes": [{"name": "neuras bundle", "nodes": [0]}],
+        "scenes": [{"name": "neuras bundle", "nodes": [1]}],
         "nodes": [{"name": "neuras bundle", "mesh": 0,
                    **({"translation": [float(x) for x in bundle.origin]} if bundle.origin.any() else {}),
-                   "extensions": {NEURAL_EXTENSION: neural}}],
+                   "extensions": {NEURAL_EXTENSION: neural}}, up_node],
         "meshes": [{"name": "bundle mesh" + (" (core)" if bundle.mesh.core_faces else ""),
                     "primitives": primitives}],
         "materials": materials,
@@ -197,9 +209,10 @@ def glb_bytes(bundle, files: dict[str, bytes], max_texture_size: int = DEFAULT_M
                      struct.pack("<II", len(body), CHUNK_BIN), body])
 
 
-def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> Path:
+def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE, up: str = "auto") -> Path:
     """Write the bundle at ``bundle_path`` (a folder, or a GLB of ours) as the glTF binary ``out`` (.glb), its
-    images at most ``max_texture_size`` texels a side (``texture_limit.check_side``).
+    images at most ``max_texture_size`` texels a side (``texture_limit.check_side``), the capture's ``up`` (an
+    ``export --up`` value, ``gltf_up.UP_CHOICES``) turned onto +Y.
 
     Validates everything first (the bundle with its checksums, the output path: absent or a GLB of ours), then
     writes a temporary file beside ``out`` and renames it into place: on any error nothing is left behind.
@@ -209,6 +222,7 @@ def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SI
 
     src, out = Path(bundle_path), Path(out)
     limit = checked_limit(max_texture_size)
+    parse_up(up)
     if out.suffix.lower() != ".glb":
         raise BadInputError(f"--out {out}: a glTF binary must end in .glb")
     if out.exists() or out.is_symlink():
@@ -223,8 +237,9 @@ def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SI
     if bundle.plain_rgb is None:
         raise BadInputError(f"bundle {src} has no plain RGB texture (plain_rgb.png; bundles baked by older "
                             "versions lack it): re-run the distillation to export it as glTF")
+    up_vector, _ = resolve_up(up, src)
     files = read_bundle_files(src) if src.is_file() else read_bundle_file_bytes(src)
-    data = glb_bytes(bundle, files, limit)
+    data = glb_bytes(bundle, files, limit, up_vector)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.tmp-{os.getpid()}-{int(time.time() * 1000)}"
     try:

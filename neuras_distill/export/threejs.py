@@ -8,7 +8,8 @@ fetched from outside the folder: three.js is copied from ``THREE_DIR``, a local 
 
 Layout of DIR::
 
-    index.html           the page (``web/three.html``): the scene with OrbitControls; ``?camera=N`` the bundle
+    index.html           the page (``web/three.html``): the scene with OrbitControls and three.js's default +Y-up
+                         camera (the glb stands upright, ``export/gltf_up.py``); ``?camera=N`` the bundle
                          alone from held-out camera N at its own size (``window.neurasReady`` after the first
                          frame), ``&plain`` the same without the plugin (what other glTF viewers show)
     neuras-three.js      the plugin (package data, copied unchanged)
@@ -77,15 +78,18 @@ def three_modules(three_dir: Path) -> list[str]:
     return sorted(seen)
 
 
-def three_files(bundle_path: Path, three_dir: Path, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE
-                ) -> dict[str, bytes]:
-    """{relative path: bytes} of the three.js folder (module docstring) for the bundle at ``bundle_path``."""
+def three_files(bundle_path: Path, three_dir: Path, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE,
+                up: str = "auto") -> dict[str, bytes]:
+    """{relative path: bytes} of the three.js folder (module docstring) for the bundle at ``bundle_path``, its
+    glb turned upright by ``up`` (an ``export --up`` value)."""
     from ..bake.bundle import load_bundle, read_bundle_file_bytes
     from ..bake.glb_reader import read_bundle_files
     from .gltf import glb_bytes
+    from .gltf_up import parse_up, resolve_up
     from .web import cameras_json
 
     limit = checked_limit(max_texture_size)
+    parse_up(up)
     version = three_version(three_dir)
     modules = three_modules(three_dir)
     bundle = load_bundle(bundle_path)
@@ -93,9 +97,10 @@ def three_files(bundle_path: Path, three_dir: Path, max_texture_size: int = DEFA
         raise BadInputError(f"bundle {bundle_path} has no plain RGB texture (plain_rgb.png; bundles baked by older "
                             "versions lack it): re-run the distillation to export it for three.js")
     raw = read_bundle_files(bundle_path) if bundle_path.is_file() else read_bundle_file_bytes(bundle_path)
+    up_vector, _ = resolve_up(up, bundle_path)
     web = resources.files("neuras_distill") / "web"
     files = {"index.html": (web / PAGE).read_bytes(), PLUGIN: (web / PLUGIN).read_bytes(),
-             "scene.glb": glb_bytes(bundle, raw, limit),
+             "scene.glb": glb_bytes(bundle, raw, limit, up_vector),
              "cameras.json": cameras_json(bundle, bundle_path.resolve())}
     for rel in ("package.json", "LICENSE", *modules):
         if (three_dir / rel).is_file():
@@ -105,16 +110,18 @@ def three_files(bundle_path: Path, three_dir: Path, max_texture_size: int = DEFA
     return files
 
 
-def export_threejs(bundle_path, out, three_dir, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE) -> tuple[Path, str]:
+def export_threejs(bundle_path, out, three_dir, max_texture_size: int = DEFAULT_MAX_TEXTURE_SIZE,
+                   up: str = "auto") -> tuple[Path, str]:
     """Write the three.js folder ``out`` for the bundle at ``bundle_path`` (a folder, or a GLB of ours) with
-    three.js copied from ``three_dir``. Validates everything first, builds the folder under a temporary sibling
-    name and renames it into place (an existing ``out`` is replaced only when it carries our marker): on any
-    error nothing is left behind. Returns (``out``, the three.js version)."""
+    three.js copied from ``three_dir``, the glb turned upright by ``up`` (``export --up``). Validates everything
+    first, builds the folder under a temporary sibling name and renames it into place (an existing ``out`` is
+    replaced only when it carries our marker): on any error nothing is left behind.
+    Returns (``out``, the three.js version)."""
     src, out, three_dir = Path(bundle_path), Path(out), Path(three_dir)
     check_replaceable(out, MARKER, "three.js folder")
     if not src.exists():
         raise BadInputError(f"bundle {src} does not exist")
-    files = three_files(src, three_dir, max_texture_size)
+    files = three_files(src, three_dir, max_texture_size, up)
     return write_folder(out, files), json.loads(files[MARKER])["three"]
 
 
