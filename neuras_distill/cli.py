@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from .cli_parser import EXPORT_FORMAT_NAMES, build_parser
-from .run_inputs import RUN_COMMANDS, parse_box, parse_int, run_inputs
+from .run_inputs import RUN_COMMANDS, nerfstudio_run, parse_box, parse_int, run_inputs
 
 
 def _default_out(args) -> Path:
@@ -20,7 +20,7 @@ def _default_out(args) -> Path:
         name = DEFAULT_SCENE if args.command == "demo" else args.name
         return Path(f"runs/{name}" + ("" if args.kind in (None, "sdf") else f"-{args.kind}"))
     if args.command == "from-nerfstudio":
-        run = Path(args.run).resolve()
+        run = Path(nerfstudio_run(args)).resolve()
         folder = run if run.is_dir() else run.parent              # outputs/<scene>/<method>/<timestamp>
         return Path(f"runs/{folder.parent.parent.name or folder.name or 'nerfstudio'}-{folder.parent.name}")
     return Path(f"runs/{Path(args.snapshot if args.command == 'from-ngp' else args.checkpoint).stem or 'field'}")
@@ -50,6 +50,8 @@ def _distill_command(args) -> int:
         except BadInputError as exc:
             agree(launch, {}, error=str(exc))
             raise
+    if getattr(args, "cameras_said", None) and not args.quiet:
+        print(args.cameras_said, file=sys.stderr)
     distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
             fresh=args.fresh, keep_work=args.keep_work, source=_source(args), device=args.device,
             nproc=args.nproc)

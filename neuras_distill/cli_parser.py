@@ -75,10 +75,13 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p)
 
     p = sub.add_parser("from-nerfstudio", help="a nerfstudio nerfacto run (config.yml) through the whole pipeline")
-    p.add_argument("run", help="the run's config.yml or its folder (outputs/<scene>/nerfacto/<timestamp>)")
+    p.add_argument("run", nargs="?", default=None,
+                   help="the run's config.yml or its folder (outputs/<scene>/nerfacto/<timestamp>)")
+    p.add_argument("--load-config", dest="load_config", default=None, metavar="CONFIG",
+                   help="the run's config.yml, as nerfstudio's commands take it (instead of RUN)")
     p.add_argument("--cameras", default=None,
-                   help="the dataset's transforms.json (nerfstudio stores no cameras; default: an orbit around "
-                        "the foreground box)")
+                   help="the dataset's transforms.json (default: the dataset config.yml names, or a "
+                        "transforms.json beside config.yml; without one, an orbit around the foreground box)")
     p.add_argument("--foreground-box", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1",
                    help="box in the dataset's frame holding the foreground (default: where the density is)")
     p.add_argument("--appearance", default="mean",

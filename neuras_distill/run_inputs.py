@@ -104,10 +104,22 @@ def _sdf_inputs(args) -> tuple:
     return _checkpoint_inputs(args, args.checkpoint, "neus", options)
 
 
+def nerfstudio_run(args) -> str:
+    """The run ``from-nerfstudio`` reads: RUN or ``--load-config`` (nerfstudio's name for it); one of them."""
+    from .errors import BadInputError
+
+    given = [v for v in (args.run, getattr(args, "load_config", None)) if v is not None]
+    if not given:
+        raise BadInputError("from-nerfstudio needs the run: its config.yml as RUN or --load-config CONFIG")
+    if len(given) == 2 and Path(given[0]).resolve() != Path(given[1]).resolve():
+        raise BadInputError(f"RUN {given[0]} and --load-config {given[1]} name different runs: give one")
+    return given[0]
+
+
 def _nerfstudio_inputs(args) -> tuple:
     from pathlib import Path
 
-    run = Path(args.run)
+    run = Path(nerfstudio_run(args))
     options: dict = {"appearance": args.appearance if args.appearance in ("mean", "zeros")
                      else parse_int(args.appearance, "--appearance")}
     if args.foreground_box is not None:
@@ -117,6 +129,16 @@ def _nerfstudio_inputs(args) -> tuple:
         args.cameras = None
     field, cameras, cfg = _checkpoint_inputs(args, str(run / "config.yml" if run.is_dir() else run), "nerfstudio",
                                              options)
+    if args.cameras is None and exported is None:    # nerfstudio's habit: the dataset config.yml names
+        found, where = field.dataset_transforms()
+        if found is not None:
+            args.cameras = str(found)
+            cameras = cameras_option(args.cameras)
+            args.cameras_said = f"cameras: {found} ({where})"
+        else:
+            args.cameras_said = (f"cameras: {where}: an orbit around the foreground box instead; give the "
+                                 "dataset's transforms.json with --cameras")
+        field.notes.append(args.cameras_said)
     if cameras is not None and exported is None:     # the dataset's transforms.json: the cameras as trained
         import json
 

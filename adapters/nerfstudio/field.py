@@ -55,6 +55,7 @@ class NerfstudioField:
                  foreground_box=None):
         self.network = network
         self.settings = settings
+        self._run = run                  # the run's files (private: not part of the field's fingerprint)
         self.pose_adjustment = None      # the camera optimizer's (K, 6) corrections, set by the adapter
         self.notes = list(settings.notes)
         if network.layout != "torch":
@@ -130,6 +131,13 @@ class NerfstudioField:
     def split(self) -> tuple:
         """(eval_mode, eval_interval, train_split_fraction) of the run's data parser."""
         return self.settings.split
+
+    def dataset_transforms(self):
+        """(the run's dataset ``transforms.json`` or None, a phrase saying where it was found or why not): the
+        cameras a run without ``--cameras`` trains on (:func:`.run.dataset_transforms`)."""
+        from .run import dataset_transforms
+
+        return dataset_transforms(self._run)
 
     def corrected_cameras(self, cameras, names: list[str]):
         """The dataset's cameras (``transforms.json`` frames ``names``) with the camera optimizer's pose corrections

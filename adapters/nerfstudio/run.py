@@ -110,6 +110,43 @@ def find_run(path) -> NerfstudioRun:
     return NerfstudioRun(folder, config_path, config, checkpoint, dataparser)
 
 
+def _named_dataset(config: dict) -> str | None:
+    """The dataset path config.yml names (the data manager's ``data``, else the trainer's, else the data parser's
+    own when it is not ``.``), as written; None when it names none."""
+    datamanager = (config.get("pipeline") or {}).get("datamanager") or {}
+    for value in (datamanager.get("data"), config.get("data"), (datamanager.get("dataparser") or {}).get("data")):
+        if isinstance(value, str) and value.strip() not in ("", "."):
+            return re.sub(r"^/+", "/", value.strip())
+    return None
+
+
+def dataset_transforms(run: NerfstudioRun, cwd: Path | None = None) -> tuple[Path | None, str]:
+    """(the dataset's ``transforms.json``, what was looked at) for a run without ``--cameras``.
+
+    Where nerfstudio looks: the ``data`` path config.yml names, a folder holding ``transforms.json`` or that file
+    itself; a relative path is relative to where ``ns-train`` ran, which is ``cwd`` (default: the current folder)
+    or the folder holding ``outputs/`` (the run folder's ancestors are tried). A run moved away from its dataset
+    (copied from another machine) is also looked for beside ``config.yml``. None with the reason when nothing is
+    found."""
+    named = _named_dataset(run.config)
+    candidates: list[Path] = []
+    if named is not None:
+        path = Path(named)
+        candidates += [path] if path.is_absolute() else [(cwd or Path.cwd()) / path,
+                                                         *(base / path for base in run.folder.resolve().parents)]
+    candidates.append(run.folder)
+    for candidate in candidates:
+        found = candidate if candidate.suffix == ".json" else candidate / "transforms.json"
+        if found.is_file():
+            how = ("the dataset config.yml names" if candidate is not run.folder
+                   else f"beside config.yml (the dataset config.yml names, {named}, is not here)" if named
+                   else "beside config.yml")
+            return found, how
+    where = f"the dataset config.yml names ({named}) has no transforms.json here" if named \
+        else "config.yml names no dataset"
+    return None, where
+
+
 def read_config(path: Path) -> dict:
     """config.yml as plain data (tags as data, nothing run); refuses a file that is not a nerfstudio config."""
     try:

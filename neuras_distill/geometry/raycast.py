@@ -4,7 +4,8 @@ open3d's ``RaycastingScene`` is the one tool used, by two callers: visibility cu
 (:mod:`.visibility`: which face a pixel ray hits first) and the bunny scene's SDF bake
 (:mod:`neuras_distill.scenes.synthetic`: signed distance at grid points, with a majority vote over several
 rays for the sign). Both go through the three functions here, so an open3d API change is fixed in one place.
-Importing this module imports open3d; the scenes import it lazily, only when a bunny grid is baked.
+open3d (about 1.8 s to import) is imported on the first call, not with this module, so importing the package or
+``nd.distill`` does not pay for it.
 
 All coordinates are in the caller's frame (the mesh's vertices, the rays and the points share it); nothing
 here moves or scales anything.
@@ -18,7 +19,13 @@ Public API:
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
+
+
+def _open3d():
+    """The open3d module, imported on first use."""
+    import open3d  # noqa: PLC0415
+
+    return open3d
 
 
 def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
@@ -30,6 +37,7 @@ def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
     Returns:
         the scene, to pass to :func:`cast_rays` / :func:`signed_distance` (any number of times).
     """
+    o3d = _open3d()
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
                         o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)))
@@ -47,6 +55,7 @@ def cast_rays(scene, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ids: (R,) int64 index into the mesh's faces of the first face hit, -1 where the ray hits nothing.
         t_hit: (R,) float32 ray parameter of that hit, inf where the ray hits nothing.
     """
+    o3d = _open3d()
     hits = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays, dtype=np.float32)))
     raw = hits["primitive_ids"].numpy().reshape(-1)
     ids = raw.astype(np.int64)
@@ -66,7 +75,7 @@ def signed_distance(scene, points: np.ndarray, nsamples: int) -> np.ndarray:
         (...) float32 distances, the shape of ``points`` without its last axis.
     """
     pts = np.ascontiguousarray(points, dtype=np.float32)
-    return scene.compute_signed_distance(o3d.core.Tensor(pts), nsamples=int(nsamples)).numpy()
+    return scene.compute_signed_distance(_open3d().core.Tensor(pts), nsamples=int(nsamples)).numpy()
 
 
 __all__ = ["cast_rays", "raycasting_scene", "signed_distance"]

@@ -304,13 +304,20 @@ def blocks_markdown(blocks: list[tuple]) -> str:
     return "\n".join(lines)
 
 
+def _figure(rows: int, cols: int, figsize: tuple[float, float]):
+    """(Figure, axes (rows, cols)) drawn by Agg through matplotlib's object API: no pyplot, no global backend,
+    so a notebook's own backend and figures are left as they are."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(rows, cols, squeeze=False)
+
+
 def plot(rep: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, grid = _figure(1, 2, (11, 4))
+    axes = grid[0]
     ax = axes[0]
     pts = rep["error_vs_runtime"]
     field_pts = [p for p in pts if p["kind"] == "field"]
@@ -337,7 +344,6 @@ def plot(rep: dict, path: Path) -> None:
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def plot_tradeoff(points: list[dict], fronts: dict, path: Path) -> None:
@@ -346,13 +352,8 @@ def plot_tradeoff(points: list[dict], fronts: dict, path: Path) -> None:
     starred; only the front, the default and the floor labelled. Bottom: the bundles alone on linear axes, every
     one labelled from a column beside the cluster (variants often lie within a millisecond and a tenth of a dB
     of each other)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     keys = list(fronts)
-    fig, axes = plt.subplots(2, len(keys), figsize=(6.5 * len(keys), 10), squeeze=False)
+    fig, axes = _figure(2, len(keys), (6.5 * len(keys), 10))
     for col, key in enumerate(keys):
         ax, zoom = axes[0][col], axes[1][col]
         here = [p for p in points if f"{p['resolution'][0]}x{p['resolution'][1]}" == key]
@@ -392,7 +393,6 @@ def plot_tradeoff(points: list[dict], fronts: dict, path: Path) -> None:
         zoom.grid(True, alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def _tradeoff_style(point: dict) -> tuple[str, str, int]:
