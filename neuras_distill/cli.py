@@ -238,6 +238,10 @@ def _main(argv: list[str] | None) -> int:
             return _check(args)
         if args.command == "export":
             return _export(args)
+        if args.command == "tiles":
+            from .tiles.commands import COMMANDS as TILE_COMMANDS
+
+            return TILE_COMMANDS[args.tiles_command](args)
     except BadInputError as exc:
         print(f"neuras-distill: error: {exc}", file=sys.stderr)
         return 2

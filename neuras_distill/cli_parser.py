@@ -153,6 +153,37 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frame time the recommendation aims at (default 16.7 ms, 60 Hz)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    p = sub.add_parser("tiles", help="a large scene as tiles: plan them, distill each as its own job, merge them "
+                                        "into a 3D Tiles tileset")
+    tiles = p.add_subparsers(dest="tiles_command", required=True)
+    q = tiles.add_parser("plan", help="split the scene's foreground into tiles on the ground plane: CITY/plan.json")
+    q.add_argument("source", help="as for check: a checkpoint path, synthetic:NAME or extreme:NAME")
+    q.add_argument("--tile-size", type=float, required=True, metavar="METRES",
+                   help="side of a tile on the ground plane, in the field's units")
+    q.add_argument("--margin", type=float, default=None, metavar="METRES",
+                   help="overlap each tile trains on beyond its side (default: a tenth of the tile size)")
+    q.add_argument("--out", required=True, metavar="CITY", help="the folder of the plan and its tiles")
+    q.add_argument("--dry-run", action="store_true",
+                   help="print the tiles, their cameras and estimated time and memory; write nothing")
+    q.add_argument("--kind", choices=["sdf", "density"], default=None, help="synthetic scenes: field type")
+    q.add_argument("--cameras", default=None, help="transforms.json (as the run commands)")
+    q.add_argument("--preset", default=None, help="settings preset (default: the scene's own, as the run commands)")
+    q.add_argument("--config", default=None, help="TOML settings (as the run commands)")
+    q.add_argument("--steps", type=int, default=None, help="distillation steps of the whole scene, shared out")
+    q.add_argument("--face-budget", type=int, default=None, help="faces of the whole scene, shared out")
+    q = tiles.add_parser("run", help="distill tile K of a plan into CITY/tiles/K/ (every unfinished tile without "
+                                     "--tile): resumable, a finished tile is skipped")
+    q.add_argument("city", metavar="CITY", help="the folder of the plan (tiles plan --out)")
+    q.add_argument("--tile", type=int, default=None, metavar="K",
+                   help="the tile to distill (a SLURM array: --tile $SLURM_ARRAY_TASK_ID); default: all, in turn")
+    q.add_argument("--device", default="auto", metavar="DEVICE", help="as the run commands")
+    q.add_argument("--nproc", default=1, metavar="N", help="as the run commands: processes sharing a tile's teacher")
+    q.add_argument("--quiet", action="store_true", help="no progress output")
+    q = tiles.add_parser("merge", help="the finished tiles as a 3D Tiles 1.1 tileset: tileset.json and a .glb each")
+    q.add_argument("city", metavar="CITY", help="the folder of the plan and its finished tiles")
+    q.add_argument("--out", required=True, help="the tileset folder (replaced only when neuras-distill wrote it)")
+    q.add_argument("--max-texture-size", default=None, metavar="N", help="as export")
+
     p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file; "
                                          "web: a static folder that plays it in a browser; threejs: a three.js "
                                          "page with the glb and the plugin that plays its neural material)")

@@ -42,8 +42,10 @@ ROOMS = {
                  "metrics", "neural", "neuras_distill", "playback", "render", "stability"},
     "bench": {"bake", "cli_parser", "config", "errors", "fields", "flip_metric", "metrics", "neuras_distill",
               "pipeline", "playback", "render", "run_inputs"},
+    "tiles": {"bake", "config", "errors", "export", "geometry", "neuras_distill", "pipeline", "playback", "render",
+              "stability"},
     "cli": {"bake", "bench", "cli_parser", "config", "device", "errors", "export", "pipeline", "playback",
-            "run_inputs", "scenes", "stability"},
+            "run_inputs", "scenes", "stability", "tiles"},
     "adapters": {"components", "errors", "fields", "render", "scenes"},
 }
 

@@ -60,13 +60,15 @@ class DistillResult:
 def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig | dict | None = None,
             out: str | Path | None = None, *, log=None, progress: bool = True, fresh: bool = False,
             keep_work: bool = True, source: dict | None = None, reuse_from=(), device="auto",
-            nproc: int = 1) -> DistillResult:
+            nproc: int = 1, held_out: Cameras | None = None) -> DistillResult:
     """Distill ``field`` into a bundle that OpenGL plays, and measure it against the field.
 
     Args:
         field: any object following the Field contract (kind, aabb, geometry, radiance).
         cameras: the cameras to train and evaluate on (OpenGL convention); every ``test_every``-th is held
             out. When None: ``field.cameras`` if the field brings them, else the field's ``default_cameras``.
+        held_out: the cameras to evaluate on, when the split is given: ``cameras`` are then all trained on
+            and none of them is held out (a tile of a tiled scene is scored at the scene's held-out cameras).
         config: a DistillConfig, a dict of overrides, or None for the defaults.
         out: run folder (bundle, report.json, report.md, images). None: nothing is written (and nothing is
             reused). A run killed before it finished leaves ``.<name>.partial`` beside it; the same call
@@ -118,7 +120,7 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
         cfg = config.validate()
     check_field(field)
     source = source or {"python": f"{type(field).__module__}.{type(field).__qualname__}"}
-    cameras, camera_origin = _pick_cameras(field, cameras, cfg)
+    cameras, camera_origin = pick_cameras(field, cameras, cfg, held_out)
     if camera_origin.startswith("generated"):
         log(f"cameras: {camera_origin}")
     stability, cfg = _check_stability(field, cameras, cfg, log)
@@ -127,14 +129,14 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
 
     if launch is not None:
         return _run_launched(launch, out, field, cameras, cfg, log, progress, stability, source, device,
-                             camera_origin, fresh, keep_work, reuse_from)
+                             camera_origin, fresh, keep_work, reuse_from, held_out)
     with _render_pool(field, nproc) as pool:
         return _run_into(out, field, cameras, cfg, log, progress, stability, source, device, camera_origin,
-                         fresh, keep_work, reuse_from, pool)
+                         fresh, keep_work, reuse_from, pool, held_out)
 
 
 def _run_launched(launch, out, field, cameras, cfg, log, progress, stability, source, device, camera_origin,
-                  fresh, keep_work, reuse_from) -> DistillResult | None:
+                  fresh, keep_work, reuse_from, held_out=None) -> DistillResult | None:
     """One rank of a torchrun / srun launch: every rank checks that the others got the same field, cameras,
     configuration and version; rank 0 runs with a pool over the group, the others serve it."""
     from .. import __version__
@@ -143,7 +145,8 @@ def _run_launched(launch, out, field, cameras, cfg, log, progress, stability, so
     from .torchrun import agree, join_group, serve
 
     join_group(launch, str(device))
-    places = agree(launch, {"field": field_fingerprint(field), "cameras": digest(cameras.to_json()),
+    places = agree(launch, {"field": field_fingerprint(field),
+                            "cameras": digest(cameras.to_json(), None if held_out is None else held_out.to_json()),
                            "configuration": digest(json.dumps(dataclasses.asdict(cfg), sort_keys=True, default=str)),
                            "version": __version__})
     if launch.rank != 0:
@@ -153,7 +156,7 @@ def _run_launched(launch, out, field, cameras, cfg, log, progress, stability, so
     log(f"{launch.launcher}: {launch.world} ranks on {pool.nodes()} nodes share the teacher and training")
     with pool:
         return _run_into(out, field, cameras, cfg, log, progress, stability, source, device, camera_origin,
-                         fresh, keep_work, reuse_from, pool)
+                         fresh, keep_work, reuse_from, pool, held_out)
 
 
 def _render_pool(field, nproc: int):
@@ -168,11 +171,11 @@ def _render_pool(field, nproc: int):
 
 
 def _run_into(out, field, cameras, cfg, log, progress, stability, source, device, camera_origin, fresh, keep_work,
-              reuse_from, pool) -> DistillResult:
+              reuse_from, pool, held_out=None) -> DistillResult:
     """:func:`_run` without a folder (``out`` None) or into a :class:`RunFolder` (resumable)."""
     if out is None:
         return _run(field, cameras, cfg, None, log, progress, stability, source=source, device=device,
-                    camera_origin=camera_origin, pool=pool)
+                    camera_origin=camera_origin, pool=pool, held_out=held_out)
     folder = RunFolder(out, keep_work=keep_work)
     with folder as tmp:
         if folder.resumed_folder:
@@ -182,7 +185,7 @@ def _run_into(out, field, cameras, cfg, log, progress, stability, source, device
         cache = StageCache(folder.work, [folder.previous_work, *map(Path, reuse_from)], fresh=fresh, log=log)
         try:
             result = _run(field, cameras, cfg, tmp, log, progress, stability, cache=cache, keep_work=keep_work,
-                          source=source, device=device, camera_origin=camera_origin, pool=pool)
+                          source=source, device=device, camera_origin=camera_origin, pool=pool, held_out=held_out)
         except BaseException:
             if folder.work.is_dir() and any(folder.work.glob("*/*/done.json")):
                 log(f"finished stages are kept in {tmp}; the same command reuses them (--fresh ignores them)")
@@ -227,7 +230,7 @@ def _check_stability(field: Field, cameras: Cameras, cfg: DistillConfig, log) ->
     return result, cfg
 
 
-def _pick_cameras(field: Field, cameras, cfg: DistillConfig) -> tuple[Cameras, str]:
+def pick_cameras(field: Field, cameras, cfg: DistillConfig, held_out=None) -> tuple[Cameras, str]:
     """(cameras, where they came from: ``"given"``, ``"the field's own"`` or ``"generated: ..."`` with the first
     line of the field's ``default_cameras`` docstring; ``report["views"]["cameras"]``)."""
     origin = "given"
@@ -246,6 +249,10 @@ def _pick_cameras(field: Field, cameras, cfg: DistillConfig) -> tuple[Cameras, s
         doc = " ".join((inspect.getdoc(make) or "").split("\n\n")[0].split())
         origin = f"generated by {type(field).__name__}.default_cameras" + (f": {doc}" if doc else "")
     require(isinstance(cameras, Cameras), f"cameras must be an nd.Cameras, got {type(cameras).__name__}")
+    if held_out is not None:
+        require(isinstance(held_out, Cameras) and len(held_out) >= 1 and len(cameras) >= 1,
+                "held_out must be an nd.Cameras of at least one camera, beside at least one training camera")
+        return cameras, origin
     require(len(cameras) >= 2, f"need at least 2 cameras (some to train on, some held out), got {len(cameras)}")
     return cameras, origin
 
@@ -257,14 +264,14 @@ _HOST = torch.device("cpu")
 def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, log, progress: bool,
          stability: dict | None = None, cache: StageCache | None = None, keep_work: bool = True,
          source: dict | None = None, device: torch.device = _HOST,
-         camera_origin: str = "given", pool=None) -> DistillResult:
+         camera_origin: str = "given", pool=None, held_out: Cameras | None = None) -> DistillResult:
     """The seven stages in order (``pipeline.stages``), then the report."""
     from ..playback.context import gl_info
 
     t_start = time.perf_counter()
     ctx = RunContext(field, cfg, root, cache, log, progress, device=device, pool=pool)
     try:
-        views = stages.split_cameras(ctx, cameras)
+        views = stages.split_cameras(ctx, cameras, held_out)
         teacher, teacher_views = stages.render_teacher(ctx, views)
         plan = stages.plan_limits(ctx, views, teacher_views)              # the training plan: its limits,
         geometry, inputs = stages.geometry_stage(ctx, views, teacher_views, plan)

@@ -229,14 +229,16 @@ class BundleRenderer:
         tex.repeat_x = tex.repeat_y = False
         return tex
 
-    def _local_view(self, cameras, i: int) -> tuple[np.ndarray, np.ndarray]:
+    def _local_view(self, cameras, i: int, near_far: tuple[float, float] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
         """(c2w, mvp): world camera ``i``'s (4, 4) float64 pose in the bundle's frame (``origin`` subtracted in
         float64, then rounded to float32 like every camera) and its model-view-projection with the tight
-        near / far of the mesh's box (``projection.near_far_for``)."""
+        near / far of the mesh's box (``projection.near_far_for``), or the given ``near_far`` (view-axis
+        distances)."""
         c2w = cameras.c2w[i].double().numpy().copy()
         c2w[:3, 3] -= self.origin
         c2w = c2w.astype(np.float32).astype(np.float64)
-        near, far = near_far_for(self._bounds, c2w[:3, 3], c2w)
+        near, far = near_far if near_far is not None else near_far_for(self._bounds, c2w[:3, 3], c2w)
         proj = projection_matrix(float(cameras.fx[i]), float(cameras.fy[i]), float(cameras.cx[i]),
                                  float(cameras.cy[i]), cameras.width, cameras.height, near, far)
         return c2w, proj @ view_matrix(c2w)
@@ -309,6 +311,21 @@ class BundleRenderer:
         if blended is not None:                 # the soft-silhouette pass (silhouette.py)
             self._blend_silhouettes(c2w, mvp, (int(cameras.width), int(cameras.height)), fbo, scene_color, *blended)
         return fbo
+
+    def draw_mesh_into(self, cameras, i: int, near_far: tuple[float, float]) -> None:
+        """Draw the mesh alone (no clear, no skyboxes, no silhouette pass) of world camera ``i`` into the bound
+        framebuffer, depth-tested against what is there, with the projection's planes at ``near_far`` (view-axis
+        distances, the same for every bundle drawn into that framebuffer): several bundles (the tiles of a
+        tileset, ``playback/tiles.py``) then meet in one depth buffer."""
+        for unit, tex in self._textures:
+            tex.use(location=unit)
+        set_raster_state(self.ctx, self.cull_back_faces)
+        c2w, mvp = self._local_view(cameras, i, near_far)
+        if self.vao is None:
+            return
+        self._set_camera(c2w, mvp)
+        for call in self._layers:
+            draw_mesh(self.vaos[max(0, int(call[0]))], self.programs[max(0, int(call[0]))], [call])
 
     def _draw_deferred(self, cameras, i: int, skybox: bool):
         """:meth:`draw` by the deferred path (``deferred.py``)."""

@@ -172,3 +172,34 @@ class BoxSDF(AnalyticSDFField):
 
     def __repr__(self) -> str:
         return f"BoxSDF(center={self.center.tolist()}, half_size={self.half_size.tolist()}, r={self.rounding})"
+
+
+class BlocksSDF(AnalyticSDFField):
+    """A small town for tiling: a ground slab 3 x 2 units (top at z = 0, 0.1 thick) with six rounded blocks of
+    different heights on a 3 x 2 grid, z up; sdf = min(slab, blocks). Every block stands inside one cell of a
+    1-unit grid, the ground runs under all of them: a tile boundary at x = -0.5 or 0.5 or y = 0 cuts the ground
+    and no block."""
+
+    HEIGHTS = (0.55, 0.3, 0.8, 0.4, 0.65, 0.25)
+
+    def __init__(self, *, margin: float = 0.05, **kw):
+        self.centres = torch.tensor([[x, y] for y in (-0.5, 0.5) for x in (-1.0, 0.0, 1.0)], dtype=torch.float32)
+        self.heights = torch.tensor(self.HEIGHTS, dtype=torch.float32)
+        aabb = torch.tensor([[-1.5 - margin, -1.0 - margin, -0.1 - margin],
+                             [1.5 + margin, 1.0 + margin, float(self.heights.max()) + margin]])
+        super().__init__(aabb, **kw)
+
+    def exact_sdf(self, x: torch.Tensor) -> torch.Tensor:
+        slab_half = x.new_tensor([1.5, 1.0, 0.05])
+        q = (x - x.new_tensor([0.0, 0.0, -0.05])).abs() - slab_half
+        d = q.clamp(min=0.0).norm(dim=-1) + q.max(dim=-1).values.clamp(max=0.0)
+        r = 0.03
+        for (cx, cy), h in zip(self.centres.tolist(), self.heights.tolist()):
+            half = x.new_tensor([0.3 - r, 0.3 - r, h / 2 - r])
+            q = (x - x.new_tensor([cx, cy, h / 2])).abs() - half
+            d = torch.minimum(d, q.clamp(min=0.0).norm(dim=-1) + q.max(dim=-1).values.clamp(max=0.0) - r)
+        return d
+
+    def __repr__(self) -> str:
+        return "BlocksSDF()"
+

@@ -5,7 +5,8 @@ This module owns:
 * :data:`SCENES` (name -> factory) and :func:`make_scene` (``kind`` ``"sdf"`` or ``"density"``, default the
   scene's own). Names:
   ``"bunny"`` (the default/demo scene), ``"bunny-matte"`` (the same without its highlight), ``"sphere"``,
-  ``"torus"``, ``"street"`` (:mod:`.street`), ``"city"`` and ``"city-small"`` (:mod:`.city`),
+  ``"torus"``, ``"street"`` (:mod:`.street`), ``"city"`` and ``"city-small"`` (:mod:`.city`), ``"blocks"`` (six
+  blocks on a ground slab, :class:`~.analytic.BlocksSDF`: a scene small enough to tile in a test),
   ``"gradient-ball"`` (:mod:`.gradient_ball`, a density field only).
 * :class:`BunnyField`: the real Stanford bunny (``neuras_distill/data/bunny.obj``, y-up in the file) rotated
   to z-up, scaled to 1 unit tall, standing on a rounded disc. Its SDF is computed once with open3d
@@ -38,7 +39,7 @@ import torch.nn.functional as F
 
 from ..errors import BadInputError
 from ..fields.wrappers import SDFToDensityField
-from .analytic import SphereSDF, TorusSDF, orbit_framing, smoothstep
+from .analytic import BlocksSDF, SphereSDF, TorusSDF, orbit_framing, smoothstep
 from .city import CITY_BETA, make_city, make_small_city
 from .gradient_ball import make_gradient_ball
 from .street import STREET_BETA, make_street
@@ -322,13 +323,17 @@ def _torus() -> TorusSDF:
     return TorusSDF(center=(0.0, 0.0, 0.2), major=0.5, minor=0.2, inv_s=BUNNY_INV_S, gloss=GLOSS_STRENGTH)
 
 
+def _blocks() -> BlocksSDF:
+    return BlocksSDF(inv_s=BUNNY_INV_S)
+
+
 SCENES: dict[str, Callable[[], object]] = {"bunny": _bunny, "bunny-matte": _bunny_matte, "sphere": _sphere,
                                            "torus": _torus, "street": make_street,
                                            "gradient-ball": make_gradient_ball, "city": make_city,
-                                           "city-small": make_small_city}
+                                           "city-small": make_small_city, "blocks": _blocks}
 DEFAULT_SCENE = "bunny"
 SCENE_BETA = {"bunny": BUNNY_BETA, "bunny-matte": BUNNY_BETA, "sphere": BUNNY_BETA, "torus": BUNNY_BETA,
-              "street": STREET_BETA, "city": CITY_BETA, "city-small": CITY_BETA}
+              "street": STREET_BETA, "city": CITY_BETA, "city-small": CITY_BETA, "blocks": BUNNY_BETA}
 
 
 def make_scene(name: str = DEFAULT_SCENE, kind: str | None = None):

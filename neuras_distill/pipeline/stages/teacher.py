@@ -16,14 +16,19 @@ from ..stage_results import CameraSplit, TeacherResult
 from .context import RunContext, settings
 
 
-def split_cameras(ctx: RunContext, cameras: Cameras) -> CameraSplit:
-    """Hold out every ``cameras.test_every``-th camera, size both sets, write ``cameras.json`` and plan the
-    skybox layers (which checks the user's distances before any rendering)."""
+def split_cameras(ctx: RunContext, cameras: Cameras, held_out: Cameras | None = None) -> CameraSplit:
+    """Hold out every ``cameras.test_every``-th camera (or, given ``held_out``, train on every one of
+    ``cameras`` and evaluate on ``held_out``), size both sets, write ``cameras.json`` and plan the skybox layers
+    (which checks the user's distances before any rendering)."""
     from ...neural.skybox import plan_layers
 
     cfg = ctx.cfg
-    ctx.clock.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
-    train_full, test_full = cameras.split(cfg.cameras.test_every)
+    if held_out is None:
+        ctx.clock.start("cameras", f"{len(cameras)} cameras, holding out every {cfg.cameras.test_every}th")
+        train_full, test_full = cameras.split(cfg.cameras.test_every)
+    else:
+        ctx.clock.start("cameras", f"{len(cameras)} training cameras, {len(held_out)} held out as given")
+        train_full, test_full = cameras, held_out
     train_width = rules.capped_width(cfg.teacher.train_width, train_full.width)
     eval_width = (rules.capped_width(cfg.eval.width, test_full.width, cfg.eval.max_upscale) if cfg.eval.width
                   else test_full.width)

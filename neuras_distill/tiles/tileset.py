@@ -1,0 +1,109 @@
+"""The finished tiles as a 3D Tiles 1.1 tileset (``neuras-distill tiles merge CITY --out CITY/tileset/``).
+
+Owns :func:`merge_tiles`, :func:`tileset_json` and the layout of the folder it writes (docs/formats.md
+"Tilesets"):
+
+    tileset.json        3D Tiles 1.1: the root (no content, ``refine`` ADD) and one child per tile with its
+                        ``.glb`` as content
+    tiles/K.glb         tile K's cut bundle (``CITY/tiles/K/tile``) as ``export --format gltf`` writes it: the
+                        plain texture, ``NEURAS_neural_material`` and the bundle inside, upright (+Y) by the
+                        plan's up
+    cameras.json        the plan's cameras ({"train", "test"} of ``Cameras.to_json``, world frame)
+    .neuras-distill-tileset  marker: this folder is ours, so a later merge may replace it
+
+Frames: 3D Tiles is z up and turns glTF content from +Y up to +Z up (its ``gltfUpAxis`` default), so a tile's
+content is in the tileset frame ``M p`` of a world point p, M = (+Y -> +Z) @ (the glb's up rotation): the world
+frame itself for a z-up capture. Bounding volumes are oriented boxes in that frame: each tile's is its mesh's
+bounds within its box. Without a CRS the root has no transform (a local frame, metres as the field's units).
+
+Decisions: a single level of detail for now: each tile's ``geometricError`` is 0 (its content is the finest), the
+root's is the scene's diagonal, so a client loads every tile in view.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BadInputError
+from .plan import read_plan
+from .run import tile_done
+
+MARKER = ".neuras-distill-tileset"
+#: glTF's +Y up to 3D Tiles' +Z up, as a 3D Tiles client turns glTF content: (x, y, z) -> (x, -z, y).
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def tileset_frame(up) -> np.ndarray:
+    """(3, 3) M taking world points to the tileset frame, for the capture's ``up`` (3,)."""
+    from ..export.gltf_up import rotation_onto_y
+
+    return Y_UP_TO_Z_UP @ rotation_onto_y(up)
+
+
+def oriented_box(lo, hi, frame: np.ndarray) -> list[float]:
+    """3D Tiles ``box`` (12 numbers: centre, then the x, y and z half-axes) of the world box ``lo``..``hi`` in the
+    tileset frame ``frame`` (3, 3)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    axes = [frame @ (np.eye(3)[k] * half[k]) for k in range(3)]
+    return [float(v) for v in np.concatenate([frame @ centre, *axes])]
+
+
+def tileset_json(plan: dict, bounds: list[tuple[np.ndarray, np.ndarray]], generator: str) -> dict:
+    """tileset.json for the plan's tiles with world ``bounds`` [(lo (3,), hi (3,))] of each tile's mesh."""
+    frame = tileset_frame(plan["up"])
+    scene = np.asarray(plan["scene_box"], np.float64)
+    lo = np.min([b[0] for b in bounds], axis=0)
+    hi = np.max([b[1] for b in bounds], axis=0)
+    diagonal = float(np.linalg.norm(scene[1] - scene[0]))
+    children = [{"boundingVolume": {"box": oriented_box(b_lo, b_hi, frame)}, "geometricError": 0.0,
+                 "content": {"uri": f"tiles/{tile['index']}.glb"}}
+                for tile, (b_lo, b_hi) in zip(plan["tiles"], bounds)]
+    return {"asset": {"version": "1.1", "generator": generator},
+            "geometricError": diagonal,
+            "root": {"boundingVolume": {"box": oriented_box(lo, hi, frame)}, "geometricError": diagonal,
+                     "refine": "ADD", "children": children}}
+
+
+def merge_tiles(city, out, *, max_texture_size: int | None = None) -> tuple[Path, int]:
+    """Write the tileset folder ``out`` (module docstring) of the finished tiles in ``city``; (out, bytes).
+    BadInputError naming the unfinished tiles, or an ``out`` that is not ours."""
+    from .. import __version__
+    from ..bake.bundle import load_bundle, read_bundle_file_bytes
+    from ..export.folder_output import check_replaceable, write_folder
+    from ..export.gltf import glb_bytes
+    from ..export.texture_limit import DEFAULT_MAX_TEXTURE_SIZE, checked_limit
+
+    city, out = Path(city), Path(out)
+    plan = read_plan(city)
+    check_replaceable(out, MARKER, "tileset folder")
+    missing = [t["index"] for t in plan["tiles"] if not tile_done(city, plan, t["index"])]
+    if missing:
+        raise BadInputError(f"tiles {', '.join(map(str, missing))} of {len(plan['tiles'])} are not finished: run "
+                            f"them (`neuras-distill tiles run {city} --tile K`, or without --tile for all)")
+    limit = checked_limit(max_texture_size or DEFAULT_MAX_TEXTURE_SIZE)
+    up = np.asarray(plan["up"], np.float64)
+    files: dict[str, bytes] = {}
+    bounds = []
+    for tile in plan["tiles"]:
+        folder = city / "tiles" / str(tile["index"]) / "tile"
+        bundle = load_bundle(folder)
+        world = bundle.mesh.vertices.astype(np.float64) + bundle.origin
+        bounds.append((world.min(0), world.max(0)))
+        files[f"tiles/{tile['index']}.glb"] = glb_bytes(bundle, read_bundle_file_bytes(folder), limit, up)
+    generator = f"neuras-distill {__version__}"
+    files["tileset.json"] = (json.dumps(tileset_json(plan, bounds, generator), indent=1) + "\n").encode("utf-8")
+    from ..render.cameras import Cameras
+
+    cameras = Cameras.from_json(json.loads((city / plan["cameras"]).read_text("utf-8")))
+    files["cameras.json"] = json.dumps({"train": cameras[plan["train"]].to_json(),
+                                        "test": cameras[plan["test"]].to_json()}).encode("utf-8")
+    files[MARKER] = json.dumps({"generator": "neuras-distill", "version": __version__}).encode("utf-8")
+    write_folder(out, files)
+    return out, sum(len(v) for v in files.values())
+
+
+__all__ = ["MARKER", "Y_UP_TO_Z_UP", "merge_tiles", "oriented_box", "tileset_frame", "tileset_json"]

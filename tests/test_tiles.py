@@ -1,0 +1,219 @@
+"""A scene as tiles (``neuras-distill tiles plan | run | merge``, ``neuras_distill/tiles/``).
+
+The embedded ``blocks`` scene (six blocks on a 3 x 2 ground slab, z up) planned in tiles: the plan is
+deterministic and its tiles cover the scene; a cut mesh keeps its surface and texture up to the plane; two tiles
+distilled with the fast preset meet without cracks when drawn together, and their tileset is 3D Tiles 1.1 with
+one upright glb each. Bad input is one line, exit 2, nothing written.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neuras_distill.cli import main
+from neuras_distill.geometry.clip import clip_mesh_to_box
+from neuras_distill.geometry.mesh import MeshData
+
+ROOT = Path(__file__).resolve().parents[1]
+VALIDATOR = ROOT / ".tools" / "node_modules" / "gltf-validator"
+
+
+def _one_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("neuras-distill: error: ") and "Traceback" not in err, err
+    return err
+
+
+def _plan(out: Path, size: str = "1", *extra: str) -> int:
+    return main(["tiles", "plan", "synthetic:blocks", "--tile-size", size, "--out", str(out), "--preset", "fast",
+                 *extra])
+
+
+def test_a_cut_keeps_the_surface_and_its_texture_up_to_the_plane():
+    """A 10 x 10 grid of quads over [0, 1]^2 (uv = xy) cut to x <= 0.37, y >= 0.22: the kept area is exactly the
+    box's, every new vertex lies on a plane and keeps uv = xy, no edge inside is left open."""
+    n = 10
+    xs = np.linspace(0, 1, n + 1)
+    v = np.stack(np.meshgrid(xs, xs, indexing="xy"), -1).reshape(-1, 2)
+    vertices = np.c_[v, np.zeros(len(v))]
+    faces = []
+    for j in range(n):
+        for i in range(n):
+            a = j * (n + 1) + i
+            faces += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
+    mesh = MeshData(vertices, np.array(faces), v.astype(np.float32))
+    cut = clip_mesh_to_box(mesh, [-np.inf, 0.22, -1], [0.37, np.inf, 1])
+    tri = cut.vertices[cut.faces].astype(np.float64)
+    area = 0.5 * np.abs(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[:, 2]).sum()
+    assert area == pytest.approx(0.37 * 0.78, rel=1e-5)
+    assert cut.vertices[:, 0].max() <= 0.37 + 1e-6 and cut.vertices[:, 1].min() >= 0.22 - 1e-6
+    np.testing.assert_allclose(cut.uvs, cut.vertices[:, :2], atol=1e-6)
+    # every edge is shared by two faces except on the outline of the kept rectangle (no crack inside)
+    edges: dict = {}
+    for f in cut.faces:
+        for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+            edges[tuple(sorted((int(a), int(b))))] = edges.get(tuple(sorted((int(a), int(b)))), 0) + 1
+    for (a, b), count in edges.items():
+        if count == 1:
+            pa, pb = cut.vertices[a], cut.vertices[b]
+            on = [abs(pa[0] - 0.37) < 1e-6 and abs(pb[0] - 0.37) < 1e-6, abs(pa[1] - 0.22) < 1e-6 and
+                  abs(pb[1] - 0.22) < 1e-6, pa[0] < 1e-6 and pb[0] < 1e-6, pa[1] > 1 - 1e-6 and pb[1] > 1 - 1e-6]
+            assert any(on), (pa, pb)
+    assert cut.stats["clipped_faces"]["before"] == 200
+
+
+def test_a_plan_is_deterministic_and_its_tiles_cover_the_scene(tmp_path, capsys):
+    assert _plan(tmp_path / "a") == 0 and _plan(tmp_path / "b") == 0
+    assert (tmp_path / "a" / "plan.json").read_bytes() == (tmp_path / "b" / "plan.json").read_bytes()
+    assert _plan(tmp_path / "a") == 0                            # the same plan again: nothing changes
+    plan = json.loads((tmp_path / "a" / "plan.json").read_text())
+    assert plan["up_axis"] == "+z" and plan["ground_axes"] == [0, 1] and len(plan["tiles"]) == 6
+    scene = np.asarray(plan["scene_box"])
+    area = 0.0
+    for tile in plan["tiles"]:
+        box, grown = np.asarray(tile["box"]), np.asarray(tile["training_box"])
+        assert (grown[0] <= box[0]).all() and (grown[1] >= box[1]).all()
+        assert (grown[0] >= scene[0] - 1e-9).all() and (grown[1] <= scene[1] + 1e-9).all()
+        assert set(tile["cameras"]) <= set(plan["train"]) and set(tile["held_out"]) <= set(plan["test"])
+        assert tile["cameras"] and tile["budget"]["faces"] >= 2000
+        area += np.prod((box[1] - box[0])[:2])
+    assert area == pytest.approx(np.prod((scene[1] - scene[0])[:2]))
+    assert sum(t["budget"]["weight"] for t in plan["tiles"]) == pytest.approx(1.0, abs=1e-5)
+    capsys.readouterr()
+    assert _plan(tmp_path / "c", "1", "--dry-run") == 0
+    table = capsys.readouterr().out
+    assert "6 tiles of 1 (+0.1 overlap) on the xy plane" in table and "est. s" in table
+    assert not (tmp_path / "c").exists()
+
+
+def test_bad_plans_and_runs_exit_2_with_one_line_and_write_nothing(tmp_path, capsys):
+    assert _plan(tmp_path / "big", "5") == 2
+    assert "makes one tile of the whole scene" in _one_line(capsys) and not (tmp_path / "big").exists()
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    assert _plan(other) == 2 and "holds no tile plan" in _one_line(capsys)
+    city = tmp_path / "city"
+    assert _plan(city) == 0
+    capsys.readouterr()
+    assert _plan(city, "1.5") == 2 and "holds another plan" in _one_line(capsys)
+    assert main(["tiles", "run", str(city), "--tile", "6"]) == 2
+    assert "--tile 6 is out of range: the plan has tiles 0..5" in _one_line(capsys)
+    assert main(["tiles", "merge", str(city), "--out", str(tmp_path / "set")]) == 2
+    assert "tiles 0, 1, 2, 3, 4, 5 of 6 are not finished" in _one_line(capsys) and not (tmp_path / "set").exists()
+    plan = json.loads((city / "plan.json").read_text())
+    for change, message in (({"version": 99}, "version 99"), ({"format": "something"}, "not a neuras-distill tile"),
+                            ({"field": "0" * 24}, "made for another field")):
+        (city / "plan.json").write_text(json.dumps({**plan, **change}))
+        assert main(["tiles", "run", str(city), "--tile", "0"]) == 2 and message in _one_line(capsys)
+    assert not (city / "tiles").exists()
+
+
+def test_a_camera_set_that_misses_part_of_the_scene_is_refused():
+    """Cameras at x = -0.6 looking towards -x: the tiles at +x lie behind every one of them."""
+    import torch
+
+    import neuras_distill as nd
+    from neuras_distill.errors import BadInputError
+    from neuras_distill.render.cameras import Cameras, look_at
+    from neuras_distill.tiles.plan import make_plan
+
+    field = nd.make_scene("blocks")
+    c2w = torch.stack([look_at(torch.tensor([-0.6, y, 0.5]), torch.tensor([-1.5, y, 0.0]),
+                               torch.tensor([0.0, 0.0, 1.0])) for y in np.linspace(-0.8, 0.8, 12)]).float()
+    f = torch.full((12,), 40.0)
+    cams = Cameras(c2w, f, f, torch.full((12,), 32.0), torch.full((12,), 32.0), 64, 64)
+    with pytest.raises(BadInputError, match="is seen by no training camera"):
+        make_plan(field, cams, nd.load_config("fast"), tile_size=1.0, margin=0.1, source={}, fingerprint="x")
+
+
+@pytest.fixture(scope="module")
+def two_tiles(tmp_path_factory):
+    """The blocks scene in 2 tiles (x < 0, x > 0: the cut runs between blocks through the ground), run and
+    merged; (city folder, tileset folder)."""
+    city = tmp_path_factory.mktemp("tiles") / "city"
+    assert _plan(city, "1.5", "--steps", "600") == 0
+    assert main(["tiles", "run", str(city), "--quiet"]) == 0
+    assert main(["tiles", "merge", str(city), "--out", str(city / "tileset")]) == 0
+    return city, city / "tileset"
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_tiles_run_once_and_merge_into_an_upright_tileset(two_tiles, capsys):
+    city, tileset = two_tiles
+    plan = json.loads((city / "plan.json").read_text())
+    assert len(plan["tiles"]) == 2
+    capsys.readouterr()
+    assert main(["tiles", "run", str(city), "--tile", "1"]) == 0             # finished: skipped, nothing redone
+    assert "finished before, skipped" in capsys.readouterr().out
+    doc = json.loads((tileset / "tileset.json").read_text())
+    assert doc["asset"]["version"] == "1.1" and doc["root"]["refine"] == "ADD"
+    children = doc["root"]["children"]
+    assert [c["content"]["uri"] for c in children] == ["tiles/0.glb", "tiles/1.glb"]
+    for tile, child in zip(plan["tiles"], children):
+        centre, half = np.asarray(child["boundingVolume"]["box"][:3]), np.asarray(child["boundingVolume"]["box"][3:])
+        box = np.asarray(tile["box"])
+        # a z-up capture: the tileset frame is the world frame; the volume lies within the tile's box
+        assert (centre - np.abs(half.reshape(3, 3)).sum(0) >= box[0] - 1e-4).all()
+        assert (centre + np.abs(half.reshape(3, 3)).sum(0) <= box[1] + 1e-4).all()
+        glb = (tileset / child["content"]["uri"]).read_bytes()
+        n = int.from_bytes(glb[12:16], "little")
+        gltf = json.loads(glb[20:20 + n])
+        assert gltf["nodes"][1]["rotation"] == pytest.approx([-0.5 ** 0.5, 0, 0, 0.5 ** 0.5])   # +z onto +Y
+    if VALIDATOR.is_dir() and shutil.which("node"):
+        for child in children:
+            out = subprocess.run(["node", str(ROOT / "scripts" / "gltf_validate.mjs"),
+                                  str(tileset / child["content"]["uri"])], capture_output=True, text=True,
+                                 timeout=120)
+            assert out.returncode == 0, out.stdout + out.stderr
+            report = json.loads(out.stdout)
+            assert report["issues"]["numErrors"] == 0, report["issues"]
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_two_tiles_meet_without_cracks_and_match_the_field(two_tiles):
+    """The tiles drawn together (one depth buffer) at the plan's held-out cameras: no pixel where the field is
+    opaque is left empty along the seam, and the frame scores against the field like the tiles' own runs."""
+    import torch
+
+    from neuras_distill.bake.bundle import load_bundle
+    from neuras_distill.playback.tiles import TilesRenderer
+    from neuras_distill.render.cameras import Cameras
+    from neuras_distill.render.volume import VolumeRenderer
+    from neuras_distill.tiles.run import load_plan_source
+
+    city, _ = two_tiles
+    plan = json.loads((city / "plan.json").read_text())
+    field, _ = load_plan_source(plan)
+    cams = Cameras.from_json(json.loads((city / "cameras.json").read_text()))[plan["test"]].resized(192, 108)
+    tiles = [load_bundle(city / "tiles" / str(t["index"]) / "tile") for t in plan["tiles"]]
+    volume = VolumeRenderer(field, num_steps=plan["settings"]["teacher_steps"])
+    with TilesRenderer(tiles) as player:
+        for i in range(len(cams)):
+            with torch.no_grad():
+                want = volume.render(cams, i)
+            got = player.render(cams, i)
+            ids, depth = player.render_ids(cams, i)
+            assert set(np.unique(ids)) == {-1, 0, 1}                      # both tiles in view
+            seam = np.zeros(ids.shape, bool)
+            seam[:, 1:] |= (ids[:, 1:] != ids[:, :-1]) & (ids[:, 1:] >= 0) & (ids[:, :-1] >= 0)
+            near_seam = seam | np.roll(seam, 1, 1) | np.roll(seam, -1, 1) | np.roll(seam, 1, 0) | np.roll(seam, -1, 0)
+            rows = np.where(seam.any(1))[0]
+            # between the seam's first and last rows, along the seam, every pixel the field covers shows a tile
+            span = np.zeros(ids.shape, bool)
+            span[rows.min():rows.max() + 1] = True
+            holes = (want["opacity"] > 0.99) & (ids < 0) & span & (np.abs(np.arange(ids.shape[1])
+                                                                        - np.where(seam)[1].mean()) < 4)[None]
+            assert holes.sum() == 0, f"view {i}: {holes.sum()} empty pixels along the seam"
+            mse = float(np.mean((got - np.clip(want["rgb"], 0, 1)) ** 2))
+            assert -10 * np.log10(mse) >= 26.0, f"view {i}: {-10 * np.log10(mse):.2f} dB against the field"
+            assert near_seam.any()
