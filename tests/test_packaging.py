@@ -38,3 +38,16 @@ def test_adapter_entry_points_name_listed_packages():
             assert path.with_suffix(".py").is_file(), f"entry point {name} = {target}: no such module"
             package = target.split(":")[0].rpartition(".")[0]
         assert package in listed, f"entry point {name} = {target}: package {package} is not in pyproject's list"
+
+
+def test_every_data_file_of_the_package_is_listed_and_it_is_typed():
+    """Package data is listed file by file (no globs that would ship strays): every file of neuras_distill that is
+    not Python is in the list, and the list names nothing that is missing; ``py.typed`` ships (PEP 561)."""
+    data = SETUPTOOLS["package-data"]["neuras_distill"]
+    package = ROOT / "neuras_distill"
+    shipped = {p.relative_to(package).as_posix() for p in package.rglob("*")
+               if p.is_file() and p.suffix not in (".py", ".pyc") and "__pycache__" not in p.parts}
+    assert "py.typed" in data
+    assert shipped == set(data), (sorted(shipped - set(data)), sorted(set(data) - shipped))
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["license"] == "MIT" and "Typing :: Typed" in project["classifiers"]

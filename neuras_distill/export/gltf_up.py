@@ -7,7 +7,7 @@ Frames: the bundle's frame is the field's (z up for the embedded scenes, for ner
 for most Instant-NGP captures). glTF's is +Y up. The export puts the bundle's node under a root node whose rotation
 ``R`` (3, 3) maps the capture's up ``u`` onto +Y: a point ``p`` of the field is at ``R @ p`` in the glTF scene.
 
-Decisions (docs/decisions.md "an upright glTF"):
+Decisions (docs/decisions.md "An upright glTF"):
 
 * ``R`` is the shortest-arc rotation from ``u`` to +Y, so nothing turns about the up axis: +z up gives
   (x, y, z) -> (x, z, -y), the inverse of what Blender's importer does (Blender shows the field's own

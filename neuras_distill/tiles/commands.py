@@ -8,25 +8,9 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from pathlib import Path
 
 from ..errors import BadInputError, require
-
-
-def _throughput(field) -> float:
-    """Field points (geometry and radiance) a second on this machine, measured on 16384 points of its box."""
-    import torch
-
-    box = torch.as_tensor(field.aabb, dtype=torch.float32).reshape(2, 3)
-    x = box[0] + torch.rand(16384, 3, generator=torch.Generator().manual_seed(0)) * (box[1] - box[0])
-    d = torch.nn.functional.normalize(torch.ones_like(x), dim=-1)
-    with torch.no_grad():
-        field.geometry(x[:256])
-        t = time.perf_counter()
-        field.geometry(x)
-        field.radiance(x, d)
-    return len(x) / max(time.perf_counter() - t, 1e-6)
 
 
 def plan_command(args) -> int:
@@ -55,7 +39,7 @@ def plan_command(args) -> int:
     plan = make_plan(field, cameras, cfg, tile_size=args.tile_size, margin=margin, source=source,
                      fingerprint=field_fingerprint(field))
     if args.dry_run:
-        print(plan_table(plan, estimates(plan, cameras, cfg, _throughput(field))))
+        print(plan_table(plan, estimates(plan, cameras, cfg, field)))
         return 0
     data = plan_bytes(plan)
     if existing.is_file() and existing.read_bytes() != data:
@@ -85,8 +69,7 @@ def run_command(args) -> int:
         return 0
     read_plan(Path(args.city))
     status = run_tile(args.city, args.tile, nproc=nproc, device=args.device, log=log, progress=not args.quiet)
-    print(f"tile {args.tile}: " + {"skipped": "finished before, skipped", "done": "distilled",
-                                   "cut": "cut to its box"}[status])
+    print(f"tile {args.tile}: " + {"skipped": "finished before, skipped", "done": "distilled"}[status])
     return 0
 
 

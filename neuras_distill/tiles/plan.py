@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -203,28 +204,48 @@ def plan_table(plan: dict, estimates: list[dict]) -> str:
                      f"{box[0][a]:>8.1f}..{box[1][a]:<8.1f} {box[0][b]:>8.1f}..{box[1][b]:<8.1f} "
                      f"{len(tile['cameras']):>5} {len(tile['held_out']):>4} {bud['weight']:>6.3f} {bud['faces']:>7} "
                      f"{train_s:>7.0f} {est['seconds']:>7.0f} {est['megabytes']:>7.0f}")
-    lines.append("estimates: the teacher's march at the measured field throughput plus the training budget; memory: "
-                 "the marching-cubes lattice and the teacher's images")
+    lines.append("est. s: the teacher (one view of each tile rendered at 64 and 160 px, taken to its views) plus the "
+                 "training budget; est. MB: the marching-cubes lattice and the teacher's images")
     return "\n".join(lines)
 
 
-def estimates(plan: dict, cameras, cfg, points_per_second: float) -> list[dict]:
-    """Per tile {"seconds", "megabytes"}: the teacher's samples (the tile's cameras' footprint pixels times its
-    ray steps) at ``points_per_second`` plus its training seconds; the lattice (4 float32 values a point) and
-    the teacher's images at the training width (RGB, opacity, depth: 5 float32 a pixel)."""
+def estimates(plan: dict, cameras, cfg, field) -> list[dict]:
+    """Per tile {"seconds", "megabytes"}, measured where it can be: the teacher's time from one of the tile's
+    views volume-rendered on its box at 64 and 160 pixels wide (``render/volume.py``, the tile's ray steps; a
+    frame's fixed cost and its cost a pixel), taken to its training views at the teacher's width (the pixels
+    its box covers in each; twice as many views with ``cameras.extra_views`` "on"), plus its
+    training budget; memory: the marching-cubes lattice (16 bytes a point) and the teacher's images (RGB,
+    opacity, depths: 5 float32 a pixel). The evaluation (a few held-out views at 320 pixels wide) is left out."""
+    import torch
+
+    from ..render.volume import VolumeRenderer
+    from .tile_field import TileField
+
     out = []
     width = min(cfg.teacher.train_width or cameras.width, cameras.width)
     height = round(cameras.height * width / cameras.width)
+    views = 2.0 if cfg.cameras.extra_views == "on" else 1.0
     for tile in plan["tiles"]:
         bud = tile["budget"]
+        view = cameras[tile["cameras"][len(tile["cameras"]) // 2:][:1]]
+        renderer = VolumeRenderer(TileField(field, tile["training_box"], plan["field"]), num_steps=bud["teacher_steps"])
+        timed = []
+        for probe_width in (64, 160):                # a line through two sizes: a frame's fixed cost, then pixels
+            probe = view.resized(probe_width, max(1, round(view.height * probe_width / view.width)))
+            t = time.perf_counter()
+            with torch.no_grad():
+                renderer.render(probe, 0)
+            timed.append((probe.width * probe.height, time.perf_counter() - t))
+        (p0, t0), (p1, t1) = timed
+        per_pixel = max(t1 - t0, 0.0) / (p1 - p0)
         share = footprints(np.asarray(tile["training_box"]), cameras[tile["cameras"]])
-        samples = float(share.sum()) * width * height * bud["teacher_steps"]
+        teacher = (max(t0 - per_pixel * p0, 0.0) * len(tile["cameras"])      # a frame's fixed cost, each view
+                   + per_pixel * width * height * float(share.sum())) * views  # the pixels that see the box
         train_s = bud.get("train_seconds", bud.get("steps", 0) * 0.05)
         size = np.asarray(tile["training_box"][1]) - np.asarray(tile["training_box"][0])
         lattice = np.prod(np.ceil(bud["grid_resolution"] * size / size.max()) + 1)
-        images = len(tile["cameras"]) * width * height * 5 * 4
-        out.append({"seconds": samples / max(points_per_second, 1.0) + train_s,
-                    "megabytes": (lattice * 16 + images) / 2 ** 20})
+        images = len(tile["cameras"]) * views * width * height * 5 * 4
+        out.append({"seconds": teacher + train_s, "megabytes": (lattice * 16 + images) / 2 ** 20})
     return out
 
 

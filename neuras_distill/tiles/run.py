@@ -8,8 +8,10 @@ Owns :func:`run_tile`, :func:`run_tiles`, :func:`load_plan_source` and the layou
         tile/                the bundle cut back to the tile's own box (``geometry/clip.py``): what is merged
         tile.json            written last: the tile is finished (its index, boxes, the plan's digest, face counts)
 
-A tile whose ``tile.json`` matches the plan is skipped (idempotent); one whose run folder is finished but not cut
-is only cut. Each step writes under a temporary name and renames, so a killed job leaves nothing half-written.
+A tile whose ``tile.json`` matches the plan is skipped (idempotent); any other is run into its folder again, which
+reuses every stored stage whose inputs are unchanged (a killed job resumes; a finished run under a changed plan
+redoes only what the change touches). Each step writes under a temporary name and renames, so a killed job leaves
+nothing half-written.
 
 Frames: the plan's boxes are world boxes; the cut is done in the bundle's frame (world minus its origin).
 """
@@ -54,7 +56,8 @@ def load_plan_source(plan: dict):
 
 def tile_config(plan: dict, tile: dict):
     """The DistillConfig of one tile: the plan's settings (preset, config file, overrides) with the tile's
-    budget, the scene's voxel and ray step, and no skyboxes (the far field is the scene's, not a tile's)."""
+    budget, the scene's voxel and ray step, no skyboxes (the far field is the scene's, not a tile's) and a
+    light evaluation of its own (320 pixels wide, 5 timed frames, one field point)."""
     from ..config import load_config
 
     src, bud = plan["source"], tile["budget"]
@@ -62,6 +65,10 @@ def tile_config(plan: dict, tile: dict):
     overrides.setdefault("geometry", {}).update(face_budget=bud["faces"], grid_resolution=bud["grid_resolution"])
     overrides.setdefault("teacher", {})["num_steps"] = bud["teacher_steps"]
     overrides.setdefault("skybox", {})["mode"] = "off"
+    # a tile's own report is a check on its box; the scene's figures are the tiles drawn together
+    # (benchmarks/tiled_scene.py): a few held-out views at 320 pixels, one cheaper field point
+    evaluation = overrides.setdefault("eval", {})
+    evaluation.update(width=min(int(evaluation.get("width", 320) or 320), 320), fps_frames=5, runtime_steps=[32])
     if bud.get("texture_resolution"):
         overrides.setdefault("texture", {})["resolution"] = bud["texture_resolution"]
     if "steps" in bud:
@@ -124,7 +131,7 @@ def cut_tile(run: Path, tile: dict) -> dict:
 
 def run_tile(city, index: int, *, device="auto", nproc: int = 1, log=None, progress: bool = True,
              field=None) -> str:
-    """Distill tile ``index`` of the plan in ``city`` (module docstring); returns "done", "cut" or "skipped".
+    """Distill tile ``index`` of the plan in ``city`` (module docstring); returns "done" or "skipped".
     ``field``: the plan's field already loaded (``run_tiles`` loads it once)."""
     import neuras_distill as nd
 
@@ -142,21 +149,17 @@ def run_tile(city, index: int, *, device="auto", nproc: int = 1, log=None, progr
     from .tile_field import TileField
 
     run = city / "tiles" / str(index)
-    status = "cut"
-    if not (run / "report.json").is_file():
-        cams = json.loads((city / plan["cameras"]).read_text("utf-8"))
-        cameras = Cameras.from_json(cams)
-        cfg = tile_config(plan, tile)
-        nd.distill(TileField(field, tile["training_box"], fingerprint), cameras[tile["cameras"]], cfg, out=run,
-                   held_out=cameras[tile["held_out"] or tile["cameras"][:1]], log=log, progress=progress,
-                   device=device, nproc=nproc,
-                   source={"tile": index, "plan": str(city / "plan.json"), **plan["source"]})
-        status = "done"
+    cameras = Cameras.from_json(json.loads((city / plan["cameras"]).read_text("utf-8")))
+    # a run folder left by a killed job or an earlier plan is run into again: distill reuses every stage whose
+    # inputs did not change (a finished run: all of them) and recomputes the rest
+    nd.distill(TileField(field, tile["training_box"], fingerprint), cameras[tile["cameras"]], tile_config(plan, tile),
+               out=run, held_out=cameras[tile["held_out"] or tile["cameras"][:1]], log=log, progress=progress,
+               device=device, nproc=nproc, source={"tile": index, "plan": str(city / "plan.json"), **plan["source"]})
     counts = cut_tile(run, tile)
     record = {"index": index, "plan": plan_digest(plan), "box": tile["box"], "training_box": tile["training_box"],
               "faces": counts}
     _write_atomic(run / DONE, (json.dumps(record, indent=2) + "\n").encode("utf-8"))
-    return status
+    return "done"
 
 
 def run_tiles(city, *, device="auto", nproc: int = 1, log=None, progress: bool = True) -> dict:

@@ -41,6 +41,7 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     page_size = ctx.cfg.texture.page_size
     paged = page_size < max(side, ctx.cfg.texture.max_resolution if auto_side else side)
     key = digest("geometry", ctx.keys["surface"], side, rules.MIN_TEXEL_YIELD if auto_side else None,
+                 *(("at least what the charts need",) if auto_side else ()),
                  *(("view-weighted texels",) if weighted else ()), *(("pages of", page_size) if paged else ()))
 
     def unwrap_at(at_side: int):
@@ -57,6 +58,10 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
         used = used_texels(mesh)
         grown = rules.side_for_texels(side, used, wanted, hi=min(ctx.cfg.texture.max_resolution,
                                                                      density.get("budget", side)))
+        # never below what its charts need (every chart 4 x 4 texels with its padding): a small training budget
+        # (a small tile's) caps the side as a preference, a side too small for the charts does not play
+        charts_need = int(np.ceil(np.sqrt(16 * int(mesh.stats.get("uv_charts") or 0)) / 64.0)) * 64
+        grown = max(grown, min(charts_need, ctx.cfg.texture.max_resolution))
         if grown == side:
             return GeometryResult(mesh, density)
         regrown = unwrap_at(grown)
