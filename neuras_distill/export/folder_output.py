@@ -1,8 +1,8 @@
 """Writing an export's output folder whole or not at all.
 
-Owns: :func:`check_replaceable` (an existing output is replaced only when it carries the export's marker) and
-:func:`write_folder` (build it under a temporary sibling name, then rename it into place), which the web and
-three.js exports share.
+Owns: :func:`check_replaceable` (an existing output is replaced only when it carries the export's marker),
+:func:`write_folder` (build it under a temporary sibling name, then rename it into place), which the web,
+three.js and tileset outputs share, and :func:`write_file` (one file the same way: the glb export, tile plans).
 """
 
 from __future__ import annotations
@@ -46,4 +46,17 @@ def write_folder(out: Path, files: dict[str, bytes]) -> Path:
     return out
 
 
-__all__ = ["check_replaceable", "write_folder"]
+def write_file(path: Path, data: bytes) -> Path:
+    """Write ``data`` as the file ``path``: under a temporary name beside it, then renamed into place; on any
+    error nothing is left behind. Returns ``path``."""
+    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{int(time.time() * 1000)}"
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+__all__ = ["check_replaceable", "write_file", "write_folder"]

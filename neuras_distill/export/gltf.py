@@ -46,9 +46,7 @@ as a folder's (checksums from manifest.json), so the GLB plays identically to th
 from __future__ import annotations
 
 import json
-import os
 import struct
-import time
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +64,7 @@ from ..bake.glb_reader import (
     written_by_us,
 )
 from ..errors import BadInputError
+from .folder_output import write_file
 from .gltf_neural import neural_material_extension
 from .gltf_up import parse_up, quaternion_xyzw, resolve_up, rotation_onto_y
 from .playable import playable_bundle
@@ -241,14 +240,7 @@ def export_gltf(bundle_path, out, max_texture_size: int = DEFAULT_MAX_TEXTURE_SI
     files = read_bundle_files(src) if src.is_file() else read_bundle_file_bytes(src)
     data = glb_bytes(bundle, files, limit, up_vector)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}-{int(time.time() * 1000)}"
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return out
+    return write_file(out, data)
 
 
 __all__ = ["export_gltf", "glb_bytes"]

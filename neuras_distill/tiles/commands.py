@@ -46,10 +46,10 @@ def plan_command(args) -> int:
         raise BadInputError(f"{existing} holds another plan (another source, size or settings): choose another "
                             "--out, or remove that folder to plan again")
     out.mkdir(parents=True, exist_ok=True)
-    from .run import _write_atomic
+    from ..export.folder_output import write_file
 
-    _write_atomic(out / plan["cameras"], json.dumps(cameras.to_json()).encode("utf-8"))
-    _write_atomic(existing, data)
+    write_file(out / plan["cameras"], json.dumps(cameras.to_json()).encode("utf-8"))
+    write_file(existing, data)
     print(f"wrote {existing}: {len(plan['tiles'])} tiles; run them with `neuras-distill tiles run {out}` "
           f"(or --tile K each, 0..{len(plan['tiles']) - 1})")
     return 0

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BadInputError, require
+from ..export.folder_output import write_file
 from .plan import plan_bytes, read_plan
 
 DONE = "tile.json"
@@ -94,16 +95,6 @@ def tile_done(city: Path, plan: dict, index: int) -> bool:
         return False
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{int(time.time() * 1000)}"
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def cut_tile(run: Path, tile: dict) -> dict:
     """Cut ``run/bundle`` to the tile's own box on the ground plane into ``run/tile`` (atomically); returns the
     clip's counts."""
@@ -158,7 +149,7 @@ def run_tile(city, index: int, *, device="auto", nproc: int = 1, log=None, progr
     counts = cut_tile(run, tile)
     record = {"index": index, "plan": plan_digest(plan), "box": tile["box"], "training_box": tile["training_box"],
               "faces": counts}
-    _write_atomic(run / DONE, (json.dumps(record, indent=2) + "\n").encode("utf-8"))
+    write_file(run / DONE, (json.dumps(record, indent=2) + "\n").encode("utf-8"))
     return "done"
 
 
