@@ -67,7 +67,7 @@ def scene_mesh(doc: dict, body: bytes) -> tuple[np.ndarray, np.ndarray]:
     return (local + node.get("translation", [0, 0, 0])) @ rotation.T, faces
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")   # one build: its file is one xdist group (conftest.py)
 def bunny_run(tmp_path_factory):
     """A run folder (bundle/ + cameras.json) of the bunny scene's marching-cubes mesh."""
     import neuras_distill as nd

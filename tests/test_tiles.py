@@ -134,7 +134,7 @@ def test_a_camera_set_that_misses_part_of_the_scene_is_refused():
         make_plan(field, cams, nd.load_config("fast"), tile_size=1.0, margin=0.1, source={}, fingerprint="x")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")   # one build: its file is one xdist group (conftest.py)
 def two_tiles(tmp_path_factory):
     """The blocks scene in 2 tiles (x < 0, x > 0: the cut runs between blocks through the ground), run and
     merged; (city folder, tileset folder)."""
