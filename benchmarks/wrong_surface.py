@@ -2,7 +2,7 @@
 
 For a run of a synthetic scene with an SDF (``from-synthetic street|city|city-small|...``): sphere-traces the
 field's SDF along every held-out pixel (the run's ``cameras.json``), casts the same rays against the bundle's
-mesh (open3d), and calls a pixel wrong where the two depths differ by more than ``--tolerance`` (relative) or
+mesh (libigl), and calls a pixel wrong where the two depths differ by more than ``--tolerance`` (relative) or
 one of them hits nothing. With the run's side-by-side images (``views/view_NN.png``: field | bundle | ...) it
 splits the squared error between wrong-surface and right-surface pixels: if the wrong ones carry most of it,
 the mesh is what holds the run back, otherwise the texture is. The city's decimation was found this way

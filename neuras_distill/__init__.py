@@ -1,6 +1,6 @@
 """neuras-distill: turn a trained NeRF / SDF field into a mesh + neural textures + GLSL bundle.
 
-Importing the package is cheap: heavy modules (torch, moderngl, open3d, ...) load on first use of the
+Importing the package is cheap: heavy modules (torch, moderngl, libigl, ...) load on first use of the
 attribute that needs them.
 """
 

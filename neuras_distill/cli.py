@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from .cli_parser import EXPORT_FORMAT_NAMES, build_parser
+from .logs import install_cli_handler, say
 from .run_inputs import RUN_COMMANDS, nerfstudio_run, parse_box, parse_int, run_inputs
 
 
@@ -50,9 +51,9 @@ def _distill_command(args) -> int:
         except BadInputError as exc:
             agree(launch, {}, error=str(exc))
             raise
-    if getattr(args, "cameras_said", None) and not args.quiet:
-        print(args.cameras_said, file=sys.stderr)
-    distill(field, cameras, cfg, out, progress=not args.quiet, log=(lambda m: None) if args.quiet else None,
+    if getattr(args, "cameras_said", None):
+        say(args.cameras_said)
+    distill(field, cameras, cfg, out, progress=not args.quiet,
             fresh=args.fresh, keep_work=args.keep_work, source=_source(args), device=args.device,
             nproc=args.nproc)
     return 0
@@ -65,7 +66,7 @@ def _bench(args) -> int:
     resolutions = parse_resolutions(args.resolutions)
     variants = None if args.variants is None else [v.strip() for v in args.variants.split(",") if v.strip()]
     bench(args.run, resolutions=resolutions, variants=variants, target_ms=args.target_ms,
-          progress=not args.quiet, log=(lambda m: None) if args.quiet else print)
+          progress=not args.quiet, log=say)
     return 0
 
 
@@ -134,6 +135,24 @@ def _view(args) -> int:
     return 0
 
 
+def _render(args) -> int:
+    from .bake.bundle import load_bundle
+    from .path_video import bundle_location, compare_field, frames_along, path_cameras, write_frames
+
+    bundle_path, run = bundle_location(args.bundle)
+    bundle = load_bundle(bundle_path)
+    seen = path_cameras(bundle, bundle_path, run, camera_path=args.camera_path, orbit=args.orbit,
+                        path_frame=args.path_frame, dataparser=args.dataparser_transforms, width=args.width,
+                        height=args.height, fps=args.fps)
+    say(f"cameras: {seen.said}")
+    field = compare_field(args.compare) if args.compare else None
+    wrote = write_frames(frames_along(bundle, seen.cameras, field), args.out, seen.fps)
+    what = "field | bundle" if field is not None else "the bundle"
+    print(f"wrote {wrote['path']}: {wrote['frames']} frames of {what}, {wrote['width']}x{wrote['height']} at "
+          f"{wrote['fps']:g} fps" + (f", {wrote['codec']} {wrote['pixel_format']}" if "codec" in wrote else ""))
+    return 0
+
+
 def _max_texture_size(args) -> int:
     """``export --max-texture-size`` as a positive int (``export/texture_limit.py``'s default when not given)."""
     from .errors import require
@@ -165,7 +184,7 @@ def _export_web(args) -> int:
     from .export.web import export_web
 
     out = export_web(args.bundle, args.out, _max_texture_size(args))
-    print(f"wrote {out} (serve it with `python -m http.server` inside it, open index.html)")
+    print(f"wrote {out} (play it with `neuras-distill serve {out}`)")
     return 0
 
 
@@ -178,7 +197,7 @@ def _export_threejs(args) -> int:
                             "(node_modules/three of a local `npm install three`)")
     out, version = export_threejs(args.bundle, args.out, args.three, _max_texture_size(args), args.up)
     print(f"wrote {out} with three.js {version}, up {_up_said(args)} "
-          "(serve it with `python -m http.server` inside it, open index.html)")
+          f"(play it with `neuras-distill serve {out}`)")
     return 0
 
 
@@ -194,6 +213,17 @@ def _export(args) -> int:
     if writer is None:
         raise BadInputError(f"unknown --format {args.format!r}; known formats: {', '.join(EXPORT_FORMATS)}")
     return writer(args)
+
+
+def _serve(args) -> int:
+    from .export.serve import serve
+
+    try:
+        serve(args.dir, port=parse_int(args.port, "--port"), open_browser=not args.no_open,
+              ready=lambda url: print(f"serving {args.dir} at {url} (Ctrl-C stops)", flush=True))
+    except KeyboardInterrupt:
+        print(f"stopped serving {args.dir}")
+    return 0
 
 
 def _source(args) -> dict:
@@ -225,6 +255,8 @@ def _main(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     args.argv = argv
+    install_cli_handler("quiet" if getattr(args, "quiet", False) else
+                        "verbose" if getattr(args, "verbose", False) else "normal")
     from .errors import BadInputError
 
     try:
@@ -234,10 +266,14 @@ def _main(argv: list[str] | None) -> int:
             return _bench(args)
         if args.command == "view":
             return _view(args)
+        if args.command == "render":
+            return _render(args)
         if args.command == "check":
             return _check(args)
         if args.command == "export":
             return _export(args)
+        if args.command == "serve":
+            return _serve(args)
         if args.command == "tiles":
             from .tiles.commands import COMMANDS as TILE_COMMANDS
 

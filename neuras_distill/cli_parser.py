@@ -42,7 +42,8 @@ def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None)
     p.add_argument("--nproc", default=1, metavar="N",
                    help="processes that share the teacher's volume rendering on the CPU (default 1: this one "
                         "alone; N spawns N-1 workers that each hold a copy of the field)")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--quiet", action="store_true", help="no progress display; only warnings and errors")
+    p.add_argument("-v", "--verbose", action="store_true", help="also the detail (each message with its logger)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -138,6 +139,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="window: what to show first: neural, plain, uv or index (keys 1-4 switch)")
     p.add_argument("--no-skybox", action="store_true", help="window: start with the skybox pass off (key K)")
 
+    p = sub.add_parser("render", help="a bundle along a camera path (nerfstudio's camera_path.json) or an orbit, "
+                                       "as an .mp4 or PNG frames; --compare puts the field beside it")
+    p.add_argument("bundle", help="bundle folder, .glb, or a run folder (its bundle/)")
+    p.add_argument("--camera-path", default=None, metavar="JSON",
+                   help="nerfstudio's camera_path.json (its viewer's export): one frame a pose, at its size and fps")
+    p.add_argument("--orbit", type=int, default=None, metavar="N", help="N frames around the bundle's mesh instead")
+    p.add_argument("--out", required=True, metavar="PATH",
+                   help="an .mp4 (H.264, yuv420p) or a new folder for frame_NNNN.png")
+    p.add_argument("--compare", default=None, metavar="RUN_DIR",
+                   help="render the run's field beside the bundle (field | bundle): the before and after")
+    p.add_argument("--path-frame", default="auto", metavar="FRAME",
+                   help="the frame the path's poses are in: auto (nerfstudio's for a nerfstudio run, else the "
+                        "bundle's), nerfstudio, or bundle")
+    p.add_argument("--dataparser-transforms", default=None, metavar="JSON",
+                   help="the nerfstudio run's dataparser_transforms.json, for a run that does not record it")
+    p.add_argument("--width", type=int, default=None, help="frame width (default: the path's; an orbit's 960)")
+    p.add_argument("--height", type=int, default=None, help="frame height (default: the path's; an orbit's 540)")
+    p.add_argument("--fps", type=float, default=None, help="frames per second (default: the path's, else 24)")
+
     p = sub.add_parser("bench", help="error against run time for a finished run: the field at several step "
                                         "counts, the plain-texture floor and bundle variants distilled from the "
                                         "run's stored stages, with the Pareto front (writes RUN_DIR/bench/)")
@@ -151,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "mlp-two-hidden, no-view, no-vq, faces-quarter, faces-half)")
     p.add_argument("--target-ms", type=float, default=None,
                    help="frame time the recommendation aims at (default 16.7 ms, 60 Hz)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress display; only warnings and errors")
+    p.add_argument("-v", "--verbose", action="store_true", help="also the detail (each message with its logger)")
 
     p = sub.add_parser("tiles", help="a large scene as tiles: plan them, distill each as its own job, merge them "
                                         "into a 3D Tiles tileset")
@@ -178,7 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the tile to distill (a SLURM array: --tile $SLURM_ARRAY_TASK_ID); default: all, in turn")
     q.add_argument("--device", default="auto", metavar="DEVICE", help="as the run commands")
     q.add_argument("--nproc", default=1, metavar="N", help="as the run commands: processes sharing a tile's teacher")
-    q.add_argument("--quiet", action="store_true", help="no progress output")
+    q.add_argument("--quiet", action="store_true", help="no progress display; only warnings and errors")
+    q.add_argument("-v", "--verbose", action="store_true", help="also the detail (each message with its logger)")
     q = tiles.add_parser("merge", help="the finished tiles as a 3D Tiles 1.1 tileset: tileset.json and a .glb each")
     q.add_argument("city", metavar="CITY", help="the folder of the plan and its finished tiles")
     q.add_argument("--out", required=True, help="the tileset folder (replaced only when neuras-distill wrote it)")
@@ -192,7 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"output format: {', '.join(EXPORT_FORMAT_NAMES)} (gltf: glTF 2.0 binary, the mesh with its "
                         "plain RGB texture, unlit, plus the whole neural bundle inside; load_bundle reads it; web: "
                         "index.html + WebGL2 player + data, the same shaders in GLSL ES 3.00; view it with "
-                        "`python -m http.server` inside the folder, index.html?camera=N plays held-out camera N; "
+                        "`neuras-distill serve DIR`, index.html?camera=N plays held-out camera N; "
                         "threejs: index.html, the glb, the three.js plugin neuras-three.js and three.js copied from "
                         "--three, served the same way)")
     p.add_argument("--three", default=None, metavar="THREE_DIR",
@@ -208,4 +230,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="largest texture side the export writes, in texels (default 4096, a side WebGL2 browsers "
                         "hold in practice): a codebook is wrapped into more codes per row to fit; an atlas page above "
                         "it exits 2 (bake with a smaller texture.page_size, or raise N for a target that holds it)")
+
+    p = sub.add_parser("serve", help="serve a web or threejs export (or a run folder's report.html) on 127.0.0.1 "
+                                        "and open it in the browser, until Ctrl-C")
+    p.add_argument("dir", metavar="DIR", help="the --out folder of `export --format web|threejs`, or a run folder")
+    p.add_argument("--port", default="8000", metavar="N", help="port on 127.0.0.1 (default 8000; 0 picks a free one)")
+    p.add_argument("--no-open", action="store_true", help="do not open the page in a browser")
     return parser

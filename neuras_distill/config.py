@@ -7,7 +7,12 @@ TOML file does the same. Each field's docstring is what it means and its unit.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
+import sys
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:                       # Python 3.10: the same parser, released as tomli
+    import tomli as tomllib
 from dataclasses import dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path

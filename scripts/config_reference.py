@@ -13,7 +13,10 @@ import argparse
 import ast
 import dataclasses
 import sys
-import tomllib
+try:
+    import tomllib
+except ModuleNotFoundError:      # Python 3.10
+    import tomli as tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -18,7 +18,7 @@ def _run(*args, cwd=None):
 def test_help_is_fast_and_imports_nothing_heavy():
     code = ("import sys, neuras_distill.cli as c\n"
             "try:\n    c.build_parser().parse_args(['--help'])\nexcept SystemExit: pass\n"
-            "heavy = [m for m in ('torch', 'moderngl', 'open3d', 'pymeshlab', 'xatlas', 'skimage') "
+            "heavy = [m for m in ('torch', 'moderngl', 'igl', 'pymeshlab', 'xatlas', 'skimage') "
             "if m in sys.modules]\nprint('HEAVY', heavy)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert "HEAVY []" in out.stdout

@@ -384,7 +384,7 @@ def test_cull_margin_keeps_what_nearby_cameras_see():
 
 
 def test_raycast_first_hit_miss_and_signed_distance():
-    """geometry.raycast (the open3d wrapper): face ids with -1 / inf for a miss, signed distance of a cube."""
+    """geometry.raycast (the libigl wrapper): face ids with -1 / inf for a miss, signed distance of a cube."""
     from neuras_distill.geometry.raycast import cast_rays, raycasting_scene, signed_distance
 
     # the unit cube [0, 1]^3 as 12 triangles (faces 0, 1 on z = 0, faces 2, 3 on z = 1)
@@ -401,7 +401,7 @@ def test_raycast_first_hit_miss_and_signed_distance():
     np.testing.assert_allclose(t_hit[:2], [1.0, 3.0], atol=1e-6)
     assert np.isinf(t_hit[2])
     pts = np.array([[[0.5, 0.5, 0.5], [0.5, 0.5, 1.25]], [[0.1, 0.5, 0.5], [2.0, 0.5, 0.5]]])
-    d = signed_distance(scene, pts, nsamples=5)
+    d = signed_distance(scene, pts)
     assert d.shape == (2, 2) and d.dtype == np.float32
     np.testing.assert_allclose(d, [[-0.5, 0.25], [-0.1, 1.0]], atol=1e-6)
 

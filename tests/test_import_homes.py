@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: library (top-level import name) -> the one module (path from the repository root) allowed to import it
 HOMES = {
-    "open3d": "neuras_distill/geometry/raycast.py",
+    "igl": "neuras_distill/geometry/raycast.py",
     "moderngl": "neuras_distill/playback/context.py",
     "pymeshlab": "neuras_distill/geometry/cleanup.py",
     "xatlas": "neuras_distill/geometry/unwrap.py",

@@ -2,7 +2,10 @@
 folder of neuras_distill and of adapters/ (installed as neuras_distill_adapters) must be in that list, or an
 installed (non-editable) copy silently lacks it."""
 
-import tomllib
+try:
+    import tomllib
+except ModuleNotFoundError:      # Python 3.10
+    import tomli as tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -397,7 +397,7 @@ def test_an_exported_folder_plays_from_a_file_url(runs, browser, tmp_path):
     while error is None and time.monotonic() < deadline:
         error = browser.execute_script("return window.neurasError || null;")
         time.sleep(0.1)
-    assert error is not None and "data.js is missing" in error and "http.server" in error, error
+    assert error is not None and "data.js is missing" in error and "neuras-distill serve" in error, error
 
 
 @needs_gl

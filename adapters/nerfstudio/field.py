@@ -139,6 +139,13 @@ class NerfstudioField:
 
         return dataset_transforms(self._run)
 
+    def viewer_frame(self) -> dict:
+        """The frame nerfstudio's viewer draws and writes camera paths in, as a map from this field's:
+        ``{"kind": "nerfstudio dataparser", "transform": (3, 4) [R | t], "scale": s}``, ``x_ns = s (R x + t)``
+        (``neuras_distill.render.camera_path.to_dataset_frame`` undoes it)."""
+        transform = torch.cat([self._rotation64, self._translation64[:, None]], dim=1)
+        return {"kind": "nerfstudio dataparser", "transform": transform.tolist(), "scale": self.scale}
+
     def corrected_cameras(self, cameras, names: list[str]):
         """The dataset's cameras (``transforms.json`` frames ``names``) with the camera optimizer's pose corrections
         of the frames nerfstudio trained on (:func:`.cameras.corrected_cameras`): (cameras, count corrected)."""

@@ -161,7 +161,7 @@ def _machine(gl: dict | None) -> dict:
 
 
 def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, target_ms: float | None = None,
-          field=None, cameras=None, progress: bool = True, log=print) -> dict:
+          field=None, cameras=None, progress: bool = True, log=None) -> dict:
     """Bench a finished run; returns ``bench.json``'s content (see the module docstring and docs/contract.md).
 
     Args:
@@ -181,7 +181,8 @@ def bench(run_dir, *, resolutions=None, variants: list[str] | None = None, targe
     from .measure import GLEntry, field_points, gl_points, render_reference
 
     t_start = time.perf_counter()
-    log = log or (lambda m: None)
+    if log is None:
+        from ..logs import say as log
     run = Path(run_dir)
     res = parse_resolutions(resolutions) if isinstance(resolutions, str) else list(resolutions or DEFAULT_RESOLUTIONS)
     chosen = pick_variants(variants)

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..config import GeometryConfig
 from ..errors import BadInputError
+from ..logs import logger
 from ..render.volume import FRINGE_OPACITY
 from .cleanup import clean_mesh, decimate_in_blocks, smooth_rough
 from .colour_level import termination_points
@@ -26,6 +27,7 @@ from .visibility import cull_unseen_faces, missed_opaque_fraction, seen_surface_
 
 #: The library's defaults are the configuration's (one place: ``config.py``).
 _GEOMETRY = GeometryConfig()
+_log = logger("geometry")
 
 if TYPE_CHECKING:
     from ..fields.base import Field
@@ -188,9 +190,13 @@ def extract_surface(field: Field, train_cameras, config: GeometryConfig = _GEOME
         """Marching cubes, cleanup, decimation and culling; the trial unwrap is :func:`with_trial`'s."""
         timings: dict = {}
         t = time.perf_counter()
+        _log.info(f"    geometry: sampling the field on a {grid_resolution}^3 grid, marching cubes"
+                  + (" on the fused depths" if depth_fusion is not None else ""))
         mesh = marching_cubes_field(field, grid_resolution, level=density_level, fringe_check=fringe_check,
                                     depth_fusion=depth_fusion, termination=termination, shell=shell)
         timings["marching_cubes"] = time.perf_counter() - t  # includes grid sampling (and the fusion)
+        _log.info(f"    geometry: {mesh.num_faces} faces in {timings['marching_cubes']:.1f} s; cleanup, decimation to "
+                  f"{face_budget} faces, culling")
         mesh, layout = _simplify(mesh, train_cameras, timings, face_budget=face_budget, cull_unseen=cull_unseen,
                                  cull_margin_deg=cull_margin_deg, hole_check=hole_check, seen_points=seen_points)
         if depth_fusion is not None and mesh.core_faces is None:
@@ -200,6 +206,7 @@ def extract_surface(field: Field, train_cameras, config: GeometryConfig = _GEOME
         return Surface(mesh, layout, mesh, int(trial_resolution))
 
     def with_trial(surface: Surface) -> Surface:
+        _log.info(f"    geometry: UV unwrap of {surface.mesh.num_faces} faces (xatlas, trial side {trial_resolution})")
         surface.trial = unwrap_surface(surface, trial_resolution, unwrap_timeout_s=unwrap_timeout_s,
                                        max_unwrap_faces=max_unwrap_faces)
         return surface

@@ -1,81 +1,102 @@
-"""Ray casting and signed distance against a triangle mesh (this module owns every open3d call).
+"""Ray casting and signed distance against a triangle mesh (this module owns every libigl call).
 
-open3d's ``RaycastingScene`` is the one tool used, by two callers: visibility culling
-(:mod:`.visibility`: which face a pixel ray hits first) and the bunny scene's SDF bake
-(:mod:`neuras_distill.scenes.synthetic`: signed distance at grid points, with a majority vote over several
-rays for the sign). Both go through the three functions here, so an open3d API change is fixed in one place.
-open3d (about 1.8 s to import) is imported on the first call, not with this module, so importing the package or
-``nd.distill`` does not pay for it.
+libigl's AABB tree is the one tool used, by two callers: visibility culling (:mod:`.visibility`: which face a
+pixel ray hits first) and the bunny scene's SDF bake (:mod:`neuras_distill.scenes.synthetic`: distance at grid
+points, signed by the generalized winding number, which tolerates the holes of a scanned mesh). Both go through
+the three functions here, so a libigl API change is fixed in one place. libigl (``import igl``, about 16 MB
+with no dependencies beyond numpy and scipy) is imported on the first call, not with this module.
 
 All coordinates are in the caller's frame (the mesh's vertices, the rays and the points share it); nothing
-here moves or scales anything.
+here moves or scales anything. libigl computes in float64.
 
 Public API:
     raycasting_scene(vertices (V, 3), faces (F, 3)) -> scene
     cast_rays(scene, rays (R, 6)) -> (face ids (R,) int64, -1 for a miss; t_hit (R,) float32, inf for a miss)
-    signed_distance(scene, points (..., 3), nsamples) -> (...) float32
+    signed_distance(scene, points (..., 3)) -> (...) float32
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
-def _open3d():
-    """The open3d module, imported on first use."""
-    import open3d  # noqa: PLC0415
+def _igl():
+    """The libigl module, imported on first use."""
+    import igl  # noqa: PLC0415
 
-    return open3d
+    return igl
 
 
-def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
-    """An open3d ``RaycastingScene`` holding one triangle mesh.
+@dataclass(frozen=True)
+class MeshScene:
+    """One triangle mesh and libigl's AABB tree over it.
+
+    Attributes:
+        vertices: (V, 3) float64 positions; faces: (F, 3) int64 vertex indices; tree: ``igl.AABB`` built on them.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    tree: object
+
+
+def raycasting_scene(vertices: np.ndarray, faces: np.ndarray) -> MeshScene:
+    """The mesh with its AABB tree, built once.
 
     Args:
-        vertices: (V, 3) positions (cast to float32).
-        faces: (F, 3) vertex indices (cast to uint32, the dtype open3d stores); geometry id 0.
+        vertices: (V, 3) positions (cast to float64).
+        faces: (F, 3) vertex indices (cast to int64).
     Returns:
         the scene, to pass to :func:`cast_rays` / :func:`signed_distance` (any number of times).
     """
-    o3d = _open3d()
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)))
-    return scene
+    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    tree = _igl().AABB()
+    tree.init(v, f)
+    return MeshScene(v, f, tree)
 
 
-def cast_rays(scene, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def cast_rays(scene: MeshScene, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """First hit of each ray.
 
     Args:
         scene: from :func:`raycasting_scene`.
-        rays: (R, 6) float32 rows (origin xyz, direction xyz) in the mesh's frame; directions need not be unit
-            length (``t_hit`` is then in units of the direction's length).
+        rays: (R, 6) rows (origin xyz, direction xyz) in the mesh's frame; directions need not be unit length
+            (``t_hit`` is then in units of the direction's length).
     Returns:
         ids: (R,) int64 index into the mesh's faces of the first face hit, -1 where the ray hits nothing.
         t_hit: (R,) float32 ray parameter of that hit, inf where the ray hits nothing.
     """
-    o3d = _open3d()
-    hits = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays, dtype=np.float32)))
-    raw = hits["primitive_ids"].numpy().reshape(-1)
-    ids = raw.astype(np.int64)
-    ids[raw == o3d.t.geometry.RaycastingScene.INVALID_ID] = -1
-    return ids, hits["t_hit"].numpy().reshape(-1)
+    r = np.asarray(rays, dtype=np.float64).reshape(-1, 6)
+    if r.shape[0] == 0 or scene.faces.shape[0] == 0:
+        return np.full(r.shape[0], -1, np.int64), np.full(r.shape[0], np.inf, np.float32)
+    ids, t_hit, _ = scene.tree.intersect_ray_first(scene.vertices, scene.faces, np.ascontiguousarray(r[:, :3]),
+                                                   np.ascontiguousarray(r[:, 3:]))
+    ids = np.asarray(ids, np.int64).reshape(-1)
+    miss = ids < 0
+    ids[miss] = -1
+    t = np.asarray(t_hit, np.float64).reshape(-1).astype(np.float32)
+    t[miss] = np.inf
+    return ids, t
 
 
-def signed_distance(scene, points: np.ndarray, nsamples: int) -> np.ndarray:
+def signed_distance(scene: MeshScene, points: np.ndarray) -> np.ndarray:
     """Signed distance of ``points`` to the scene's mesh: negative inside, positive outside.
+
+    The magnitude is the exact distance to the nearest triangle; the sign is inside where the generalized
+    winding number (libigl's fast approximation) exceeds 1/2, which holds across small holes in the mesh.
 
     Args:
         scene: from :func:`raycasting_scene`.
-        points: (..., 3) positions (cast to float32) in the mesh's frame.
-        nsamples: rays cast per point for the inside/outside vote (odd; open3d's majority vote, which
-            tolerates small holes in the mesh).
+        points: (..., 3) positions in the mesh's frame.
     Returns:
         (...) float32 distances, the shape of ``points`` without its last axis.
     """
-    pts = np.ascontiguousarray(points, dtype=np.float32)
-    return scene.compute_signed_distance(_open3d().core.Tensor(pts), nsamples=int(nsamples)).numpy()
-
-
-__all__ = ["cast_rays", "raycasting_scene", "signed_distance"]
+    pts = np.asarray(points, dtype=np.float64)
+    flat = np.ascontiguousarray(pts.reshape(-1, 3))
+    squared, _, _ = scene.tree.squared_distance(scene.vertices, scene.faces, flat)
+    winding = _igl().fast_winding_number(scene.vertices, scene.faces, flat)
+    d = np.sqrt(np.maximum(np.asarray(squared, np.float64), 0.0)) * np.where(winding > 0.5, -1.0, 1.0)
+    return d.astype(np.float32).reshape(pts.shape[:-1])

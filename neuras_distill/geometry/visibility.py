@@ -1,8 +1,8 @@
 """Visibility culling: drop faces that no camera near the training set sees.
 
 The pixel-centre rays of every camera (``Cameras.rays`` at a subsampled resolution, at most
-``max_rays_per_camera`` rays, same field of view) are cast against the mesh (:mod:`.raycast`, open3d's
-``RaycastingScene``); a face is kept when at least one ray hits it first. Because the rays are subsampled,
+``max_rays_per_camera`` rays, same field of view) are cast against the mesh (:mod:`.raycast`, libigl's
+AABB tree); a face is kept when at least one ray hits it first. Because the rays are subsampled,
 small or grazing faces near silhouettes can be missed; ``dilate=True`` (default) also keeps the one-ring
 neighbours (faces sharing a vertex) of every seen face so no cracks open at silhouettes. Unreferenced vertices
 are then dropped.

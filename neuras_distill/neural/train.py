@@ -98,7 +98,7 @@ class TrainLog:
 
 def fit(model: NeuralTextureModel, views: TrainingPixels, *, steps: int, config: TrainConfig = _TRAIN,
         time_budget_s: float | None = None, skybox=None, checkpoint=None, device: torch.device | str | None = None,
-        exchange: GradientExchange | None = None, progress: bool = True, log_every: int | None = None,
+        exchange: GradientExchange | None = None, progress=True, log_every: int | None = None,
         num_threads: int | None = None, stop: PlateauStop | None = None) -> TrainLog:
     """Train ``model`` on teacher images.
 
@@ -118,6 +118,8 @@ def fit(model: NeuralTextureModel, views: TrainingPixels, *, steps: int, config:
         device: where the model (and skybox) train (None: where the model is); the arrays stay in host memory.
         exchange: this process's :class:`~neuras_distill.neural.data_parallel.GradientExchange` when ``fit`` runs
             on several ranks at once (same model, arrays and seed): each computes its share of every batch.
+        progress: True draws this loop's own bar, False nothing; a callable ``(step, steps)`` is called after every
+            step instead (a run's display: ``pipeline/progress.py``).
         log_every: steps between log entries (default steps // 50); num_threads: torch intra-op threads during
             the loop (None: torch's setting; on a busy CPU 1 avoids OpenMP oversubscription: 108 vs 1.8 steps/s).
         stop: optional :class:`~neuras_distill.neural.convergence.PlateauStop` (one process only): its pixels are
@@ -137,7 +139,9 @@ def fit(model: NeuralTextureModel, views: TrainingPixels, *, steps: int, config:
     log, clock = TrainLog(held_back=stop.history if stop is not None else []), _Clock(exchange)
     stored = checkpoint.load() if checkpoint is not None else None
     step = 0 if stored is None else _restore(stored, model, skybox, models, opts, gen, log, clock)
-    with _threads(num_threads), tqdm(total=steps, initial=step, file=sys.stderr, disable=not progress,
+    report = progress if callable(progress) else None       # a run's own display (pipeline/progress.py)
+    own_bar = bool(progress) and report is None
+    with _threads(num_threads), tqdm(total=steps, initial=step, file=sys.stderr, disable=not own_bar,
                                      desc="distill", leave=False) as bar:
         try:
             while step < steps:
@@ -158,6 +162,8 @@ def fit(model: NeuralTextureModel, views: TrainingPixels, *, steps: int, config:
                     exchange.agree([m_.vq.codebook.data for m_ in models])
                 step += 1
                 bar.update(1)
+                if report is not None:
+                    report(step, steps)
                 if step % log_every == 0 or step == steps:
                     _log_step(log, bar, model, step, clock, l2, loss, opts.mlp_lr(decay))
                 if stop is not None and stop.plateau(step, steps, model, skybox, pixels, models):

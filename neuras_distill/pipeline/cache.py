@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..logs import say
 
 #: Written last into a finished stage folder: {"stage", "key", "version", "files": {name: {bytes, sha256}}}.
 DONE = "done.json"
@@ -125,7 +126,7 @@ class StageCache:
         log: one-line messages (reuse, recompute and why).
     """
 
-    def __init__(self, work: Path, extra: list[Path] | None = None, *, fresh: bool = False, log=print):
+    def __init__(self, work: Path, extra: list[Path] | None = None, *, fresh: bool = False, log=say):
         self.work, self.extra, self.fresh, self.log = Path(work), [Path(p) for p in extra or []], fresh, log
         self.reused: list[str] = []
 

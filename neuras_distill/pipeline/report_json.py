@@ -69,7 +69,8 @@ def code_commit() -> str | None:
 
 def field_summary(ctx: RunContext) -> dict:
     """What the report says of the field: unbounded or not, the far region the teacher marched (its planes, its
-    samples per ray, and the share of the teacher's field evaluations spent there), the adapter's notes."""
+    samples per ray, and the share of the teacher's field evaluations spent there), the adapter's notes, and
+    the frame its own tool's viewer uses (``viewer_frame``: a field's optional method; None without one)."""
     field, renderer = ctx.field, ctx.volume_renderer
     region = renderer.far_region
     stats = renderer.stats
@@ -79,7 +80,14 @@ def field_summary(ctx: RunContext) -> dict:
                             "far_steps": renderer.far_steps,
                             "far_share_of_points": stats.get("far_points", 0) / total}
                            if region is not None else None),
-            "notes": list(getattr(field, "notes", []) or [])}
+            "notes": list(getattr(field, "notes", []) or []),
+            "viewer_frame": _viewer_frame(field)}
+
+
+def _viewer_frame(field) -> dict | None:
+    """``field.viewer_frame()`` (a device wrapper passes the attribute on from the host field), or None."""
+    method = getattr(field, "viewer_frame", None)
+    return method() if callable(method) else None
 
 
 def training_stop(plan: TrainingPlan, log: dict) -> dict:

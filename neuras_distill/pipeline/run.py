@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -32,6 +31,7 @@ import torch
 from ..config import DistillConfig, load_config
 from ..device import OUT_OF_MEMORY, out_of_memory_message, peak_memory_mb
 from ..errors import BadInputError, require
+from ..logs import say
 from ..render.cameras import Cameras
 from . import report as report_mod, stages
 from .cache import StageCache
@@ -73,6 +73,9 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
         out: run folder (bundle, report.json, report.md, images). None: nothing is written (and nothing is
             reused). A run killed before it finished leaves ``.<name>.partial`` beside it; the same call
             reuses its finished stages and training checkpoint (``report["resumed"]``).
+        log: a ``(line)`` callable for the run's messages; None: ``logging.getLogger("neuras_distill")`` at INFO
+            (``neuras_distill.logs``; the command line installs its handler).
+        progress: draw one progress display over the run (``pipeline/progress.py``: stage, views, steps, ETA).
         fresh: ignore every stored stage (they are recomputed and stored again).
         keep_work: keep the work area (``<out>/work``: stored stages, G-buffers) after success, for the next
             run into the same folder; False removes it.
@@ -111,7 +114,7 @@ def distill(field: Field, cameras: Cameras | None = None, config: DistillConfig 
             f"--device cpu (on {device}, run one process: the GPU does the work of many CPU ranks)")
     if launch is not None and launch.rank != 0:
         log, progress = (lambda msg: None), False        # rank 0 speaks for the run
-    log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    log = log or say
     if config is None:
         cfg = DistillConfig().validate()
     elif isinstance(config, dict):
@@ -274,8 +277,11 @@ def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, 
         views = stages.split_cameras(ctx, cameras, held_out)
         teacher, teacher_views = stages.render_teacher(ctx, views)
         plan = stages.plan_limits(ctx, views, teacher_views)              # the training plan: its limits,
+        ctx.display.expect("evaluate", plan.eval_seconds)
         geometry, inputs = stages.geometry_stage(ctx, views, teacher_views, plan)
         plan = stages.fix_steps(ctx, plan, stages.used_texels(geometry.mesh))  # its steps (then its clock)
+        ctx.display.expect("distill", plan.steps / plan.steps_per_second if plan.steps_per_second
+                           else plan.time_budget_s)
         training, backdrop = stages.gbuffer_stage(ctx, views, teacher_views, geometry, inputs)
         distilled = stages.distill_stage(ctx, teacher_views, plan, training, inputs, backdrop)
         if pool is not None:        # the last stage the other processes share: they leave while this one goes on
@@ -284,6 +290,8 @@ def _run(field: Field, cameras: Cameras, cfg: DistillConfig, root: Path | None, 
         evaluation = stages.evaluation_stage(ctx, views, teacher, training, distilled, backdrop, bundle)
     except OUT_OF_MEMORY as exc:                    # a GPU that ran out of memory mid-run: one line, exit 2
         raise BadInputError(out_of_memory_message(device, ctx.clock.current)) from exc
+    finally:
+        ctx.display.close()
 
     rep = build_report(ctx, views, geometry, inputs, plan, training, backdrop, distilled, bundle, evaluation,
                        stability=stability, source=source, gl_info=gl_info(), device=device)

@@ -208,7 +208,9 @@ class WindowPlayer:
             self._start_at((self.index + (1 if name == "n" else -1)) % len(self.cameras))
             self.message = f"held-out camera {self.index}"
         elif name == "h":
-            print(HELP)
+            from ..logs import say
+
+            say(HELP)
 
     def set_mode(self, mode: str) -> None:
         """Switch the output to a ``VIEW_MODES`` key; a mode this bundle cannot show leaves the mode as is and

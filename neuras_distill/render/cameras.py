@@ -179,13 +179,17 @@ class Cameras:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_transforms(cls, path: str | Path, *, warn=print) -> "Cameras":
+    def from_transforms(cls, path: str | Path, *, warn=None) -> "Cameras":
         """Read a NeRF / Instant-NGP ``transforms.json``.
 
         Supports ``camera_angle_x``/``camera_angle_y`` or ``fl_x``/``fl_y``, ``cx``/``cy``, ``w``/``h``, and
         per-frame overrides of any of these. Lens distortion (k1, k2, p1, p2, ...) is reported and ignored.
         All frames must share one image size. Poses are used as they are (no ngp rescaling).
         """
+        if warn is None:                 # ``warn``: a (line) callable for what is ignored; default the package's logger
+            from ..logs import LOGGER
+
+            warn = LOGGER.warning
         path = Path(path)
         require(path.exists(), f"camera file {path} does not exist")
         require(path.is_file(), f"camera file {path} is a directory; give the transforms.json inside it")

@@ -9,16 +9,16 @@ This module owns:
   blocks on a ground slab, :class:`~.analytic.BlocksSDF`: a scene small enough to tile in a test),
   ``"gradient-ball"`` (:mod:`.gradient_ball`, a density field only).
 * :class:`BunnyField`: the real Stanford bunny (``neuras_distill/data/bunny.obj``, y-up in the file) rotated
-  to z-up, scaled to 1 unit tall, standing on a rounded disc. Its SDF is computed once with open3d
-  (``geometry.raycast.signed_distance``: ``RaycastingScene.compute_signed_distance`` with a majority vote
-  over several rays for the sign, since the scan has small holes; they all sit at the bottom, inside the
-  base) and baked to a float32 grid cached on disk (``$NEURAS_CACHE_DIR`` or ``~/.cache/neuras-distill/``,
-  keyed by a hash of the OBJ bytes and the bake parameters, written atomically). Evaluation: trilinear
-  ``grid_sample`` of the bunny grid, united (min) with the analytic SDF of the base; normals from a
-  trilinear gradient grid (central differences). Radiance: procedural albedo with fine detail times soft
+  to z-up, scaled to 1 unit tall, standing on a rounded disc. Its SDF is computed once with libigl
+  (``geometry.raycast.signed_distance``: the distance to the nearest triangle, signed by the generalized
+  winding number, since the scan has small holes; they all sit at the bottom, inside the base) and baked to a
+  float32 grid cached on disk (``$NEURAS_CACHE_DIR`` or ``~/.cache/neuras-distill/``, keyed by a hash of the
+  OBJ bytes and the bake parameters, written atomically). Evaluation: trilinear ``grid_sample`` of the bunny
+  grid, united (min) with the analytic SDF of the base; normals from a trilinear gradient grid (central
+  differences). Radiance: procedural albedo with fine detail times soft
   diffuse lighting, plus a Blinn-Phong lobe on the bunny (view-dependent), clipped to [0, 1].
 
-open3d is reached only through :mod:`neuras_distill.geometry.raycast` (its one importer), which
+libigl is reached only through :mod:`neuras_distill.geometry.raycast` (its one importer), which
 :func:`_bake_bunny_sdf` imports lazily: the scenes need it only when a bunny grid is baked.
 World frame of every scene: z up, units ~ the object's size (the bunny is 1 unit tall).
 """
@@ -55,7 +55,6 @@ BASE_THICKNESS = 0.09
 BASE_ROUNDING = 0.02
 AABB_MARGIN = 0.02
 GRID_RESOLUTION = 160    # samples along the longest aabb axis
-SIGN_SAMPLES = 5         # rays per point for the inside/outside vote (odd)
 BUNNY_INV_S = 1000.0     # NeuS sharpness: the opacity ramp is ~ 10 / inv_s = 0.01 units wide
 BUNNY_BETA = 0.003       # VolSDF Laplace scale for the density variant (world units)
 
@@ -131,19 +130,19 @@ def _scene_aabb(vertices: np.ndarray) -> np.ndarray:
 def _bake_bunny_sdf(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, cell: float,
                     shape: tuple[int, int, int]) -> np.ndarray:
     """Signed distance of the bunny mesh at the grid points, float32 array indexed [iz, iy, ix]."""
-    from ..geometry.raycast import raycasting_scene, signed_distance  # lazy: it imports open3d
+    from ..geometry.raycast import raycasting_scene, signed_distance  # lazy: it imports libigl
 
     scene = raycasting_scene(vertices, faces)
     nz, ny, nx = shape
     axes = [origin[k] + cell * np.arange(n, dtype=np.float64) for k, n in enumerate((nx, ny, nz))]
     zz, yy, xx = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     pts = np.stack([xx, yy, zz], axis=-1).astype(np.float32)
-    sdf = signed_distance(scene, pts, SIGN_SAMPLES)
+    sdf = signed_distance(scene, pts)
     return _fix_sign_islands(sdf.astype(np.float32).reshape(shape))
 
 
 def _fix_sign_islands(sdf: np.ndarray) -> np.ndarray:
-    """Remove sign errors of the ray-parity vote (rays escaping through the scan's holes): negative
+    """Remove sign errors of the winding-number sign (near the scan's holes): negative
     islands apart from the largest inside region become positive, positive pockets not connected to the
     grid border become negative. The bunny is one closed body, so this is exact for it."""
     from scipy import ndimage
@@ -174,7 +173,7 @@ def load_bunny_grid(resolution: int = GRID_RESOLUTION) -> dict:
     cell = float(extent.max()) / (resolution - 1)
     nx, ny, nz = (int(math.ceil(float(e) / cell - 1e-6)) + 1 for e in extent)
     params = {"v": BAKE_VERSION, "res": resolution, "aabb": aabb.round(6).tolist(), "height": BUNNY_HEIGHT,
-              "nsamples": SIGN_SAMPLES}
+              "sign": "winding number"}
     key = hashlib.sha256(BUNNY_OBJ.read_bytes() + json.dumps(params, sort_keys=True).encode()).hexdigest()[:20]
     path = cache_dir() / f"bunny_sdf_{key}.npz"
     sdf = None

@@ -7,10 +7,10 @@ returns the exit code; bad input raises BadInputError, which the command line pr
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 from ..errors import BadInputError, require
+from ..logs import say
 
 
 def plan_command(args) -> int:
@@ -61,7 +61,7 @@ def run_command(args) -> int:
     from .run import run_tile, run_tiles
 
     nproc = check_nproc(args.nproc)
-    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    log = say
     if args.tile is None:
         statuses = run_tiles(args.city, nproc=nproc, device=args.device, log=log, progress=not args.quiet)
         print(f"{sum(s != 'skipped' for s in statuses.values())} tiles distilled, "

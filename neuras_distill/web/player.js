@@ -47,7 +47,7 @@
       s.src = "data.js";
       s.onload = () => (window.NEURAS_WEB_DATA ? resolve(window.NEURAS_WEB_DATA)
         : reject(new Error("data.js did not set window.NEURAS_WEB_DATA")));
-      s.onerror = () => reject(new Error("data.js is missing: export again, or serve this folder (python -m http.server)"));
+      s.onerror = () => reject(new Error("data.js is missing: export again, or serve this folder (neuras-distill serve DIR)"));
       document.head.appendChild(s);
     });
   }

@@ -22,6 +22,7 @@ from ...playback.projection import shift_cameras
 from ...render.local_frame import LocalFrameField, box_centre
 from ..cache import StageCache, field_fingerprint
 from ..choices import Background, Decisions
+from ..progress import RunProgress
 
 if TYPE_CHECKING:
     from ..parallel import RenderPool
@@ -46,8 +47,9 @@ class StageClock:
     ``peak_rss_mb``: the process's peak resident memory (MB) when each stage ended; it never falls, so the stage
     where it rises is the one that set the run's peak (a stored stage that was reused adds little)."""
 
-    def __init__(self, root: Path | None, log: Callable[[str], None], seed: int = 0):
+    def __init__(self, root: Path | None, log: Callable[[str], None], seed: int = 0, display: RunProgress | None = None):
         self.root, self.log, self.seed = root, log, seed
+        self.display = display or RunProgress(False, STAGE_NAMES)
         self.seconds: dict[str, float] = {}
         self.peak_rss_mb: dict[str, float] = {}
         self._name, self._t0 = "", 0.0
@@ -60,6 +62,7 @@ class StageClock:
     def start(self, name: str, what: str) -> None:
         self.log(f"[{STAGE_NAMES.index(name) + 1}/{len(STAGE_NAMES)}] {name}: {what}")
         self._name, self._t0 = name, time.perf_counter()
+        self.display.start(name)
         seed_stage(self.seed, name)
 
     @property
@@ -94,7 +97,8 @@ class RunContext:
         cfg: the validated configuration (the stability check may have raised some settings).
         root: the run folder being written (hidden until the run finishes), None when nothing is written.
         cache: the work area, None without a run folder.
-        log: one line to the user; progress: whether to print per-view progress.
+        log: one line to the user; progress: whether to draw the run's progress display (``display``, a
+            :class:`~neuras_distill.pipeline.progress.RunProgress` the clock starts at each stage).
         clock: stage announcements, seeds and times; decisions: what was kept and left out, in order.
         keys: each stored stage's key (``pipeline.cache.digest``), filled in as the stages run.
         device: where the field, the teacher and training compute (``neuras_distill.device``); on a GPU
@@ -120,8 +124,9 @@ class RunContext:
     pool: RenderPool | None = None
 
     def __post_init__(self) -> None:
+        self.display = RunProgress(self.progress, STAGE_NAMES)
         if self.clock is None:
-            self.clock = StageClock(self.root, self.log, self.cfg.train.seed)
+            self.clock = StageClock(self.root, self.log, self.cfg.train.seed, self.display)
         self.fingerprint = field_fingerprint(self.field)
         self.field = on_device(self.field, self.device, self.cfg.teacher.precision)
         self.origin = box_centre(self.field.aabb)
@@ -182,13 +187,13 @@ class RunContext:
         return np.lib.format.open_memmap(folder / f"{name}.npy", mode="w+", dtype=dtype, shape=tuple(shape))
 
     def progress_printer(self, label: str):
-        """A ``(done, total)`` callback printing per-view progress about five times, or None."""
+        """A ``(done, total)`` callback counting the current stage's views on the run's display, or None."""
         if not self.progress:
             return None
-        t0 = time.perf_counter()
+        return lambda done, total: self.display.count(done, total, f"{label} views")
 
-        def show(done: int, total: int) -> None:
-            if done == total or done == 1 or done % max(1, total // 5) == 0:
-                self.log(f"    {label}: {done}/{total} views ({time.perf_counter() - t0:.1f} s)")
-
-        return show
+    def step_counter(self):
+        """Training's ``progress``: a ``(step, steps)`` callback counting steps on the run's display, or False."""
+        if not self.progress:
+            return False
+        return lambda step, steps: self.display.count(step, steps, "steps")

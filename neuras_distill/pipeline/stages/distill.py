@@ -54,7 +54,7 @@ def distill_stage(ctx: RunContext, teacher: TeacherResult, plan: TrainingPlan, t
         views = TrainingPixels(gb.uv, gb.coverage, training.dirs, teacher.images, origins=backdrop.sky_origins,
                                sky_pixels=backdrop.sky_pixels)
         log = train_fn(model, views, steps=plan.steps, config=cfg.train, time_budget_s=training_seconds(ctx, plan),
-                       skybox=skybox, checkpoint=checkpoint, device=ctx.device, progress=ctx.progress,
+                       skybox=skybox, checkpoint=checkpoint, device=ctx.device, progress=ctx.step_counter(),
                        stop=plateau_stop(ctx, plan))
         if log.resumed_from_step:
             ctx.log(f"distill: continued from the checkpoint at step {log.resumed_from_step}")

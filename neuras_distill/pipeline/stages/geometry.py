@@ -45,6 +45,7 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
                  *(("view-weighted texels",) if weighted else ()), *(("pages of", page_size) if paged else ()))
 
     def unwrap_at(at_side: int):
+        ctx.log(f"    geometry: UV layout for a {at_side}x{at_side} atlas")
         return unwrap_surface(surface, at_side, unwrap_timeout_s=g.unwrap_timeout_s, face_weights=weights,
                               page_size=page_size)
 
