@@ -201,8 +201,22 @@ def _export_threejs(args) -> int:
     return 0
 
 
+def _export_3dtiles(args) -> int:
+    from .errors import BadInputError
+    from .export.tiles_page import export_3dtiles
+
+    if not args.three or not args.tiles_renderer:
+        raise BadInputError("--format 3dtiles needs --three THREE_DIR and --tiles-renderer TILES_DIR: the packages "
+                            "to copy (node_modules/three and node_modules/3d-tiles-renderer of a local `npm install "
+                            "three 3d-tiles-renderer`)")
+    out, versions = export_3dtiles(args.bundle, args.out, args.three, args.tiles_renderer)
+    print(f"wrote {out} with three.js {versions['three']} and 3DTilesRendererJS {versions['3d-tiles-renderer']} "
+          f"(play it with `neuras-distill serve {out}`)")
+    return 0
+
+
 #: ``export --format`` values and their writers (each raises BadInputError for bad input, writes atomically).
-EXPORT_FORMATS = {"gltf": _export_gltf, "web": _export_web, "threejs": _export_threejs}
+EXPORT_FORMATS = {"gltf": _export_gltf, "web": _export_web, "threejs": _export_threejs, "3dtiles": _export_3dtiles}
 assert tuple(EXPORT_FORMATS) == EXPORT_FORMAT_NAMES
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 
 #: The formats ``neuras-distill export --format`` writes.
-EXPORT_FORMAT_NAMES = ("gltf", "web", "threejs")
+EXPORT_FORMAT_NAMES = ("gltf", "web", "threejs", "3dtiles")
 
 
 def _add_run_options(p: argparse.ArgumentParser, default_out: str | None = None) -> None:
@@ -205,21 +205,28 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("city", metavar="CITY", help="the folder of the plan and its finished tiles")
     q.add_argument("--out", required=True, help="the tileset folder (replaced only when neuras-distill wrote it)")
     q.add_argument("--max-texture-size", default=None, metavar="N", help="as export")
+    q.add_argument("--crs", default=None, metavar="EPSG:XXXXX",
+                   help="the projected CRS the scene's coordinates are in (e.g. a UTM zone): the root transform "
+                        "places the city on the globe (ECEF; needs pyproj); without it, a local frame")
 
     p = sub.add_parser("export", help="write a bundle in a format other tools open (gltf: one .glb file; "
                                          "web: a static folder that plays it in a browser; threejs: a three.js "
                                          "page with the glb and the plugin that plays its neural material)")
-    p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle)")
+    p.add_argument("bundle", help="bundle folder (runs/<scene>/bundle); for 3dtiles the tileset folder of tiles merge")
     p.add_argument("--format", required=True, metavar="FORMAT",
                    help=f"output format: {', '.join(EXPORT_FORMAT_NAMES)} (gltf: glTF 2.0 binary, the mesh with its "
                         "plain RGB texture, unlit, plus the whole neural bundle inside; load_bundle reads it; web: "
                         "index.html + WebGL2 player + data, the same shaders in GLSL ES 3.00; view it with "
                         "`neuras-distill serve DIR`, index.html?camera=N plays held-out camera N; "
                         "threejs: index.html, the glb, the three.js plugin neuras-three.js and three.js copied from "
-                        "--three, served the same way)")
+                        "--three, served the same way; 3dtiles: a page streaming a tileset with 3DTilesRendererJS from "
+                        "--tiles-renderer and three.js from --three, the tiles' neural material through the plugin)")
     p.add_argument("--three", default=None, metavar="THREE_DIR",
-                   help="threejs only: the three.js package to copy into the page (node_modules/three of a local "
-                        "`npm install three`; tested with 0.187)")
+                   help="threejs, 3dtiles: the three.js package to copy into the page (node_modules/three of a "
+                        "local `npm install three`; tested with 0.187)")
+    p.add_argument("--tiles-renderer", default=None, metavar="TILES_DIR",
+                   help="3dtiles only: the 3DTilesRendererJS package to copy into the page "
+                        "(node_modules/3d-tiles-renderer of a local `npm install 3d-tiles-renderer`; tested with 0.5.3)")
     p.add_argument("--out", required=True, help="output file or folder (gltf: a .glb path; web, threejs: a folder); an "
                                                 "existing one is replaced only when neuras-distill wrote it")
     p.add_argument("--up", default="auto", metavar="AXIS",

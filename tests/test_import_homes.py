@@ -16,6 +16,8 @@ ROOT = Path(__file__).resolve().parent.parent
 #: library (top-level import name) -> the one module (path from the repository root) allowed to import it
 HOMES = {
     "igl": "neuras_distill/geometry/raycast.py",
+    "av": "neuras_distill/export/video.py",
+    "pyproj": "neuras_distill/tiles/crs.py",
     "moderngl": "neuras_distill/playback/context.py",
     "pymeshlab": "neuras_distill/geometry/cleanup.py",
     "xatlas": "neuras_distill/geometry/unwrap.py",

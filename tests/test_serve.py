@@ -103,7 +103,7 @@ def test_which_folders_are_served(tmp_path, web_folder):
     plain.mkdir()
     (plain / "index.html").write_text("<!doctype html>")
     for folder in (plain, tmp_path / "missing", web_folder / "index.html"):
-        with pytest.raises(BadInputError, match=re.escape("neuras-distill export --format web|threejs --out")):
+        with pytest.raises(BadInputError, match=re.escape("neuras-distill export --format web|threejs|3dtiles --out")):
             page_of(folder)
 
 
@@ -143,7 +143,7 @@ def test_a_plain_folder_with_an_index_html_exits_2_with_one_line(tmp_path, capsy
     (tmp_path / "index.html").write_text("<!doctype html>")
     code, out, err = _cli(capsys, ["serve", str(tmp_path), "--no-open"])
     assert code == 2 and out == ""
-    assert "is not a web or threejs export or a run folder" in _one_error_line(err)
+    assert "is not a web, threejs or 3dtiles export or a run folder" in _one_error_line(err)
 
 
 def test_a_taken_or_bad_port_exits_2_naming_port(web_folder, capsys):

@@ -9,6 +9,7 @@ served)::
 
     web export       .neuras-distill-web (``export/web.py``) + index.html        serves DIR, opens index.html
     three.js export  .neuras-distill-threejs (``export/threejs.py``) + index.html  serves DIR, opens index.html
+    3dtiles page     .neuras-distill-3dtiles (``export/tiles_page.py``) + index.html  serves DIR, opens index.html
     run folder       .neuras-distill-run (``pipeline/rundir.py``) + report.html   serves DIR, opens report.html
                                                                                   (its player is DIR/web)
 
@@ -36,6 +37,7 @@ from urllib.parse import quote
 
 from ..errors import BadInputError
 from .threejs import MARKER as THREEJS_MARKER
+from .tiles_page import MARKER as TILES_PAGE_MARKER
 from .web import MARKER as WEB_MARKER
 
 #: ``pipeline/rundir.py``'s MARKER (this room may not import the pipeline, which imports it).
@@ -54,7 +56,7 @@ def page_of(folder: Path) -> tuple[Path, str]:
     if not folder.exists():
         raise BadInputError(f"{folder} does not exist: pass the folder `neuras-distill export --format web|threejs "
                             "--out` wrote, or a run folder")
-    for marker in (WEB_MARKER, THREEJS_MARKER):
+    for marker in (WEB_MARKER, THREEJS_MARKER, TILES_PAGE_MARKER):
         if (folder / marker).is_file() and (folder / "index.html").is_file():
             return folder.resolve(), "index.html"
     if (folder / RUN_MARKER).is_file():
@@ -62,8 +64,8 @@ def page_of(folder: Path) -> tuple[Path, str]:
             return folder.resolve(), "report.html"
         raise BadInputError(f"run folder {folder} has no report.html: serve its web/ folder instead, or run the "
                             "distillation again to write it")
-    raise BadInputError(f"{folder} is not a web or threejs export or a run folder: pass the folder `neuras-distill "
-                        "export --format web|threejs --out` wrote, or a run folder")
+    raise BadInputError(f"{folder} is not a web, threejs or 3dtiles export or a run folder: pass the folder "
+                        "`neuras-distill export --format web|threejs|3dtiles --out` wrote, or a run folder")
 
 
 def check_port(port) -> int:

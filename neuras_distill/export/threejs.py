@@ -60,10 +60,11 @@ def three_version(three_dir: Path) -> str:
     return str(meta.get("version", "unknown"))
 
 
-def three_modules(three_dir: Path) -> list[str]:
-    """Paths (relative to ``three_dir``, posix) of :data:`THREE_ENTRIES` and every module they import by a
-    relative path, transitively; BadInputError when one is missing."""
-    todo, seen = list(THREE_ENTRIES), set()
+def three_modules(three_dir: Path, entries: tuple[str, ...] = THREE_ENTRIES, flag: str = "--three",
+                  package: str = "three") -> list[str]:
+    """Paths (relative to ``three_dir``, posix) of ``entries`` and every module they import by a relative path,
+    transitively; BadInputError (naming ``flag`` and the npm ``package``) when one is missing."""
+    todo, seen = list(entries), set()
     root = three_dir.resolve()
     while todo:
         rel = todo.pop()
@@ -71,7 +72,7 @@ def three_modules(three_dir: Path) -> list[str]:
             continue
         path = (root / rel).resolve()
         if not path.is_file() or root not in path.parents:
-            raise BadInputError(f"--three {three_dir}: {rel} is missing (npm install three again)")
+            raise BadInputError(f"{flag} {three_dir}: {rel} is missing (npm install {package} again)")
         seen.add(rel)
         for target in _RELATIVE_IMPORT.findall(path.read_text("utf-8")):
             todo.append((path.parent / target).resolve().relative_to(root).as_posix())

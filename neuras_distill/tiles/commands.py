@@ -82,7 +82,7 @@ def merge_command(args) -> int:
             limit = int(args.max_texture_size)
         except ValueError:
             raise BadInputError(f"--max-texture-size must be an integer, got {args.max_texture_size!r}") from None
-    out, size = merge_tiles(args.city, args.out, max_texture_size=limit)
+    out, size = merge_tiles(args.city, args.out, max_texture_size=limit, crs=args.crs)
     print(f"wrote {out / 'tileset.json'} and its tiles ({size} bytes)")
     return 0
 
