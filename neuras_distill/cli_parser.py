@@ -199,6 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the tile to distill (a SLURM array: --tile $SLURM_ARRAY_TASK_ID); default: all, in turn")
     q.add_argument("--device", default="auto", metavar="DEVICE", help="as the run commands")
     q.add_argument("--nproc", default=1, metavar="N", help="as the run commands: processes sharing a tile's teacher")
+    q.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                   help="every unfinished tile as a Ray task (pip install neuras-distill[ray]): on a local Ray, or "
+                        "on the cluster at ADDRESS (`ray start --head`'s host:port, or auto); a task whose worker "
+                        "dies is retried")
     q.add_argument("--quiet", action="store_true", help="no progress display; only warnings and errors")
     q.add_argument("-v", "--verbose", action="store_true", help="also the detail (each message with its logger)")
     q = tiles.add_parser("merge", help="the finished tiles as a 3D Tiles 1.1 tileset: tileset.json and a .glb each")

@@ -18,6 +18,7 @@ HOMES = {
     "igl": "neuras_distill/geometry/raycast.py",
     "av": "neuras_distill/export/video.py",
     "pyproj": "neuras_distill/tiles/crs.py",
+    "ray": "neuras_distill/tiles/ray_jobs.py",
     "moderngl": "neuras_distill/playback/context.py",
     "pymeshlab": "neuras_distill/geometry/cleanup.py",
     "xatlas": "neuras_distill/geometry/unwrap.py",

@@ -62,6 +62,15 @@ def run_command(args) -> int:
 
     nproc = check_nproc(args.nproc)
     log = say
+    if args.ray is not None:
+        require(args.tile is None, "--ray runs every unfinished tile; leave --tile out (or run that tile without --ray)")
+        from .ray_jobs import run_tiles_on_ray
+
+        device = "cpu" if args.device == "auto" else args.device
+        statuses = run_tiles_on_ray(args.city, args.ray or None, device=device, nproc=nproc, log=log)
+        print(f"{sum(s != 'skipped' for s in statuses.values())} tiles distilled on Ray, "
+              f"{sum(s == 'skipped' for s in statuses.values())} finished before; {len(statuses)} in all")
+        return 0
     if args.tile is None:
         statuses = run_tiles(args.city, nproc=nproc, device=args.device, log=log, progress=not args.quiet)
         print(f"{sum(s != 'skipped' for s in statuses.values())} tiles distilled, "
