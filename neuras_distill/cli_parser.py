@@ -192,6 +192,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--config", default=None, help="TOML settings (as the run commands)")
     q.add_argument("--steps", type=int, default=None, help="distillation steps of the whole scene, shared out")
     q.add_argument("--face-budget", type=int, default=None, help="faces of the whole scene, shared out")
+    q.add_argument("--levels", type=int, default=1, metavar="N",
+                   help="levels of detail per tile (default 1: full detail only); level l has 1/4^l of the faces, "
+                        "1/2^l of the atlas side and 1/4^l of the training, its geometricError measured")
     q = tiles.add_parser("run", help="distill tile K of a plan into CITY/tiles/K/ (every unfinished tile without "
                                      "--tile): resumable, a finished tile is skipped")
     q.add_argument("city", metavar="CITY", help="the folder of the plan (tiles plan --out)")

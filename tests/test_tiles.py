@@ -347,3 +347,94 @@ def test_a_maintained_reader_reads_the_tileset_back(two_tiles):
     out = subprocess.run([sys.executable, "-c", code, str(tileset)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1]) == [["tiles/0.glb", "Gltf"], ["tiles/1.glb", "Gltf"]]
+
+
+@pytest.fixture(scope="session")   # one build: its file is one xdist group (conftest.py)
+def leveled_tiles(tmp_path_factory):
+    """The blocks scene in 2 tiles at 3 levels of detail, run and merged; (city folder, tileset folder)."""
+    city = tmp_path_factory.mktemp("levels") / "city"
+    assert _plan(city, "1.5", "--steps", "600", "--levels", "3") == 0
+    assert main(["tiles", "run", str(city), "--quiet"]) == 0
+    assert main(["tiles", "merge", str(city), "--out", str(city / "tileset")]) == 0
+    return city, city / "tileset"
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_levels_of_detail_have_fewer_faces_and_a_measured_growing_error(leveled_tiles):
+    city, tileset = leveled_tiles
+    doc = json.loads((tileset / "tileset.json").read_text())
+    for k, top in enumerate(doc["root"]["children"]):
+        record = json.loads((city / "tiles" / str(k) / "tile.json").read_text())
+        levels = record["levels"]
+        assert [lv["level"] for lv in levels] == [1, 2]
+        assert levels[0]["faces"] > levels[1]["faces"] and levels[0]["side"] > levels[1]["side"]
+        assert 0 < levels[0]["error_m"] <= levels[1]["error_m"]
+        # the chain: coarsest first, each refined by the next finer, full detail last with error 0
+        chain, node = [], top
+        while True:
+            chain.append((node["content"]["uri"], node["geometricError"], node.get("refine")))
+            if not node.get("children"):
+                break
+            node = node["children"][0]
+        assert chain == [(f"tiles/{k}_2.glb", levels[1]["error_m"], "REPLACE"),
+                         (f"tiles/{k}_1.glb", levels[0]["error_m"], "REPLACE"), (f"tiles/{k}.glb", 0.0, None)]
+        for uri, _, _ in chain:
+            assert (tileset / uri).is_file()
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_the_page_picks_levels_by_screen_error_as_the_tiles_renderer_draws_them(leveled_tiles, browser, http_root,
+                                                                                tmp_path):
+    """At the default 16 px target the page draws full detail from a held-out camera and coarse levels from the
+    same camera 6 times as far: against TilesRenderer drawing those levels >= 38 dB, against full detail >= 35 dB,
+    and from afar it fetched fewer bytes than the whole tileset."""
+    import torch
+
+    from test_web import wait_for_player
+
+    from neuras_distill.bake.bundle import load_bundle
+    from neuras_distill.playback.tiles import TilesRenderer
+    from neuras_distill.render.cameras import Cameras
+    from neuras_distill.tiles.levels import level_folder
+
+    if not (TILES_RENDERER / "build" / "index.three.js").is_file() or not THREE.is_dir():
+        pytest.skip("npm's three and 3d-tiles-renderer are not in .tools/ (scripts/setup.sh installs them)")
+    city, built = leveled_tiles
+    tileset = tmp_path / "tileset"
+    shutil.copytree(built, tileset)
+    near = Cameras.from_json(json.loads((tileset / "cameras.json").read_text())["test"])[0].resized(480)
+    c2w = near.c2w.clone()
+    centre = torch.tensor(json.loads((city / "plan.json").read_text())["scene_box"]).mean(0)
+    c2w[:, :3, 3] = centre + 6.0 * (c2w[:, :3, 3] - centre)            # back along the line to the scene's centre
+    cams = near.joined(Cameras(c2w, near.fx, near.fy, near.cx, near.cy, near.width, near.height))
+    (tileset / "cameras.json").write_text(json.dumps({"train": cams.to_json(), "test": cams.to_json()}))
+    whole = sum(p.stat().st_size for p in (tileset / "tiles").glob("*.glb"))
+    root, base = http_root
+    assert main(["export", str(tileset), "--format", "3dtiles", "--three", str(THREE), "--tiles-renderer",
+                 str(TILES_RENDERER), "--out", str(root / "levels-page")]) == 0
+
+    def bundle_of(uri: str):
+        k, _, level = uri.split("/")[-1][:-4].partition("_")
+        return load_bundle(level_folder(city, int(level or 0), int(k)) / "tile")
+
+    def score(a, b) -> float:
+        return float(10 * np.log10(255 ** 2 / max(np.mean((a.astype(float) - b) ** 2), 1e-9)))
+
+    seen = {}
+    with TilesRenderer([bundle_of("tiles/0.glb"), bundle_of("tiles/1.glb")]) as full:
+        for view, name in enumerate(("near", "far")):
+            browser.get(f"{base}/levels-page/index.html?camera={view}")
+            shot = wait_for_player(browser)
+            stats = browser.execute_script("return window.neurasStats;")
+            with TilesRenderer([bundle_of(u) for u in stats["visible"]], ctx=full.ctx) as same:
+                want = np.round(same.render(cams, view) * 255)
+            ref = np.round(full.render(cams, view) * 255)
+            seen[name] = dict(stats, same_db=score(shot, want), full_db=score(shot, ref))
+    print("levels page:", seen, "whole tileset bytes:", whole)
+    assert seen["near"]["visible"] == ["tiles/0.glb", "tiles/1.glb"]
+    assert seen["far"]["visible"] and all("_" in u for u in seen["far"]["visible"]), seen["far"]
+    for name in ("near", "far"):
+        assert seen[name]["same_db"] >= 38.0 and seen[name]["full_db"] >= 35.0, seen
+    assert seen["far"]["bytes"] < whole

@@ -3,7 +3,7 @@
 libigl's AABB tree is the one tool used, by two callers: visibility culling (:mod:`.visibility`: which face a
 pixel ray hits first) and the bunny scene's SDF bake (:mod:`neuras_distill.scenes.synthetic`: distance at grid
 points, signed by the generalized winding number, which tolerates the holes of a scanned mesh). Both go through
-the three functions here, so a libigl API change is fixed in one place. libigl (``import igl``, about 16 MB
+the functions here, so a libigl API change is fixed in one place. libigl (``import igl``, about 16 MB
 with no dependencies beyond numpy and scipy) is imported on the first call, not with this module.
 
 All coordinates are in the caller's frame (the mesh's vertices, the rays and the points share it); nothing
@@ -13,6 +13,7 @@ Public API:
     raycasting_scene(vertices (V, 3), faces (F, 3)) -> scene
     cast_rays(scene, rays (R, 6)) -> (face ids (R,) int64, -1 for a miss; t_hit (R,) float32, inf for a miss)
     signed_distance(scene, points (..., 3)) -> (...) float32
+    surface_distance(scene, points (N, 3)) -> (N,) float32 unsigned
 """
 
 from __future__ import annotations
@@ -100,3 +101,12 @@ def signed_distance(scene: MeshScene, points: np.ndarray) -> np.ndarray:
     winding = _igl().fast_winding_number(scene.vertices, scene.faces, flat)
     d = np.sqrt(np.maximum(np.asarray(squared, np.float64), 0.0)) * np.where(winding > 0.5, -1.0, 1.0)
     return d.astype(np.float32).reshape(pts.shape[:-1])
+
+
+def surface_distance(scene: MeshScene, points: np.ndarray) -> np.ndarray:
+    """(N,) float32 distance from each of ``points`` (N, 3) to the nearest triangle of the scene's mesh."""
+    flat = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3))
+    if flat.shape[0] == 0:
+        return np.zeros(0, np.float32)
+    squared, _, _ = scene.tree.squared_distance(scene.vertices, scene.faces, flat)
+    return np.sqrt(np.maximum(np.asarray(squared, np.float64), 0.0)).astype(np.float32)

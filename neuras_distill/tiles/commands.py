@@ -37,7 +37,7 @@ def plan_command(args) -> int:
     source = {"source": args.source, "kind": args.kind, "cameras": args.cameras, "preset": preset,
               "config": str(Path(args.config).resolve()) if args.config else None, "overrides": overrides}
     plan = make_plan(field, cameras, cfg, tile_size=args.tile_size, margin=margin, source=source,
-                     fingerprint=field_fingerprint(field))
+                     fingerprint=field_fingerprint(field), levels=args.levels)
     if args.dry_run:
         print(plan_table(plan, estimates(plan, cameras, cfg, field)))
         return 0

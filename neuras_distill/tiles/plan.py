@@ -34,6 +34,8 @@ from ..errors import BadInputError, require
 
 PLAN_FORMAT = "neuras-distill tile plan"
 PLAN_VERSION = 1
+#: Levels of detail a plan may ask for (``--levels``): level l has 1/4^l of the faces.
+MAX_LEVELS = 4
 #: Share of a camera's image a tile's training box must cover for the camera to train (or score) it.
 MIN_FOOTPRINT = 0.01
 #: Fewest faces and training seconds a tile gets, whatever its weight.
@@ -98,10 +100,12 @@ def _scaled(count: int, weight: float, floor: int) -> int:
     return max(floor, int(round(count * weight)))
 
 
-def make_plan(field, cameras, cfg, *, tile_size: float, margin: float, source: dict, fingerprint: str) -> dict:
+def make_plan(field, cameras, cfg, *, tile_size: float, margin: float, source: dict, fingerprint: str,
+              levels: int = 1) -> dict:
     """The plan (a JSON-ready dict, module docstring) for ``field`` seen by ``cameras`` (all of them; held out as
     the run would hold them out, ``cfg.cameras.test_every``) with the settings ``cfg``. ``source`` says how to
     load the field again (``tiles run``), ``fingerprint`` identifies it (``pipeline.cache.field_fingerprint``).
+    ``levels``: levels of detail a tile is baked at (1: full detail only; ``tiles/levels.py``).
     BadInputError for a tile size larger than the scene or so small that a tile has no camera."""
     from .. import __version__
     from ..export.gltf_up import snapped_up
@@ -109,6 +113,8 @@ def make_plan(field, cameras, cfg, *, tile_size: float, margin: float, source: d
 
     require(math.isfinite(tile_size) and tile_size > 0, f"--tile-size must be a positive length, got {tile_size}")
     require(math.isfinite(margin) and margin >= 0, f"--margin must be a length of 0 or more, got {margin}")
+    require(isinstance(levels, int) and 1 <= levels <= MAX_LEVELS,
+            f"--levels must be 1..{MAX_LEVELS} (1: full detail only; each more level has 1/4 the faces), got {levels}")
     box = np.asarray(field.aabb, np.float64).reshape(2, 3)
     up, up_name = snapped_up(mean_up(cameras.c2w.double().numpy()))
     axes = ground_axes(up)
@@ -153,7 +159,8 @@ def make_plan(field, cameras, cfg, *, tile_size: float, margin: float, source: d
         if cfg.train.time_budget_s:
             budget["train_seconds"] = max(MIN_TRAIN_SECONDS, round(cfg.train.time_budget_s * w, 1))
         tile["budget"] = budget
-    return {"format": PLAN_FORMAT, "version": PLAN_VERSION, "generator": f"neuras-distill {__version__}",
+    extra = {"levels": levels} if levels > 1 else {}          # absent: 1 (plans made before levels keep their bytes)
+    return {**extra, "format": PLAN_FORMAT, "version": PLAN_VERSION, "generator": f"neuras-distill {__version__}",
             "source": source, "field": fingerprint, "scene_box": box.tolist(),
             "up": up.tolist(), "up_axis": up_name, "ground_axes": [a, b], "tile_size": float(tile_size),
             "margin": float(margin), "cameras": "cameras.json", "train": train, "test": test,

@@ -95,6 +95,48 @@ def tile_done(city: Path, plan: dict, index: int) -> bool:
         return False
 
 
+def _distill_tile(field, fingerprint, plan: dict, tile: dict, cameras, cfg, run: Path, *, log, progress, device,
+                  nproc, reuse_from=(), source_extra=None) -> dict:
+    """One distillation of the tile into ``run`` (resumable), then its cut (``cut_tile``)."""
+    import neuras_distill as nd
+
+    from .tile_field import TileField
+
+    # a run folder left by a killed job or an earlier plan is run into again: distill reuses every stage whose
+    # inputs did not change (a finished run: all of them) and recomputes the rest
+    nd.distill(TileField(field, tile["training_box"], fingerprint), cameras[tile["cameras"]], cfg, out=run,
+               held_out=cameras[tile["held_out"] or tile["cameras"][:1]], log=log, progress=progress, device=device,
+               nproc=nproc, reuse_from=reuse_from, source={"tile": tile["index"], **(source_extra or {}),
+                                                           **plan["source"]})
+    return cut_tile(run, tile)
+
+
+def _coarse_levels(city: Path, plan: dict, tile: dict, field, fingerprint, cameras, cfg, *, log, progress, device,
+                   nproc) -> list[dict]:
+    """Levels 1 .. ``plan["levels"]`` - 1 of the tile (``tiles/levels.py``), each distilled from level 0's stored
+    stages, cut, and measured against level 0: [{"level", "faces", "side", "deviation_m", "texel_m", "error_m"}]."""
+    from ..bake.bundle import load_bundle
+    from .levels import atlas_side, level_error, level_folder, level_overrides
+
+    k = tile["index"]
+    fine_run = level_folder(city, 0, k)
+    fine = load_bundle(fine_run / "tile")
+    side0 = atlas_side(fine_run)
+    out, floor = [], 0.0
+    for level in range(1, int(plan.get("levels", 1))):
+        overrides = level_overrides(cfg, level, side0)
+        level_cfg = cfg.updated(overrides, f"level {level}")
+        run = level_folder(city, level, k)
+        _distill_tile(field, fingerprint, plan, tile, cameras, level_cfg, run, log=log, progress=progress,
+                      device=device, nproc=nproc, reuse_from=[fine_run / "work"], source_extra={"level": level})
+        coarse = load_bundle(run / "tile")
+        error = level_error(fine, coarse, overrides["texture"]["resolution"])
+        floor = max(floor, error["error_m"])
+        out.append({"level": level, "faces": int(coarse.mesh.num_faces), "side": overrides["texture"]["resolution"],
+                    **error, "error_m": floor})
+    return out
+
+
 def cut_tile(run: Path, tile: dict) -> dict:
     """Cut ``run/bundle`` to the tile's own box on the ground plane into ``run/tile`` (atomically); returns the
     clip's counts."""
@@ -124,8 +166,6 @@ def run_tile(city, index: int, *, device="auto", nproc: int = 1, log=None, progr
              field=None) -> str:
     """Distill tile ``index`` of the plan in ``city`` (module docstring); returns "done" or "skipped".
     ``field``: the plan's field already loaded (``run_tiles`` loads it once)."""
-    import neuras_distill as nd
-
     from ..render.cameras import Cameras
 
     city = Path(city)
@@ -137,18 +177,15 @@ def run_tile(city, index: int, *, device="auto", nproc: int = 1, log=None, progr
         field, fingerprint = load_plan_source(plan)
     else:
         fingerprint = plan["field"]
-    from .tile_field import TileField
-
     run = city / "tiles" / str(index)
     cameras = Cameras.from_json(json.loads((city / plan["cameras"]).read_text("utf-8")))
-    # a run folder left by a killed job or an earlier plan is run into again: distill reuses every stage whose
-    # inputs did not change (a finished run: all of them) and recomputes the rest
-    nd.distill(TileField(field, tile["training_box"], fingerprint), cameras[tile["cameras"]], tile_config(plan, tile),
-               out=run, held_out=cameras[tile["held_out"] or tile["cameras"][:1]], log=log, progress=progress,
-               device=device, nproc=nproc, source={"tile": index, "plan": str(city / "plan.json"), **plan["source"]})
-    counts = cut_tile(run, tile)
+    cfg = tile_config(plan, tile)
+    options = dict(log=log, progress=progress, device=device, nproc=nproc)
+    counts = _distill_tile(field, fingerprint, plan, tile, cameras, cfg, run,
+                           source_extra={"plan": str(city / "plan.json")}, **options)
+    levels = _coarse_levels(city, plan, tile, field, fingerprint, cameras, cfg, **options)
     record = {"index": index, "plan": plan_digest(plan), "box": tile["box"], "training_box": tile["training_box"],
-              "faces": counts}
+              "faces": counts, **({"levels": levels} if levels else {})}
     write_file(run / DONE, (json.dumps(record, indent=2) + "\n").encode("utf-8"))
     return "done"
 

@@ -20,8 +20,11 @@ the tileset frame to ECEF, exact at the scene box's centre, and each tile's own 
 exact at the tile's centre: the Earth's curvature then costs under a millimetre across a 150 m tile (the root's
 expansion alone: 2.8 cm at 600 m).
 
-Decisions: a single level of detail for now: each tile's ``geometricError`` is 0 (its content is the finest), the
-root's is the scene's diagonal, so a client loads every tile in view.
+Levels of detail (``tiles plan --levels N``): each tile is a chain of nodes, its coarsest level first, each
+refined (``REPLACE``) by the next finer, down to full detail (``geometricError`` 0); a level's
+``geometricError`` is its measured error against full detail (``tiles/levels.py``), and level l's content is
+``tiles/K_l.glb``. The root (``refine`` ADD) holds the chains; its error is the scene's diagonal. Every node of a
+chain has the tile's bounds over all its levels.
 """
 
 from __future__ import annotations
@@ -60,19 +63,35 @@ def _column_major(m: np.ndarray) -> list[float]:
     return [float(v) for v in np.asarray(m, np.float64).T.reshape(-1)]
 
 
+def level_uri(index: int, level: int) -> str:
+    """The content of tile ``index`` at ``level`` (0: full detail)."""
+    return f"tiles/{index}.glb" if level == 0 else f"tiles/{index}_{level}.glb"
+
+
+def _chain(index: int, levels: list[dict], box: list[float]) -> dict:
+    """Tile ``index``'s nodes, coarsest first, each refined (REPLACE) by the next finer: ``levels`` [{"level",
+    "error_m"}] of its coarse levels (level 0, full detail, has geometricError 0)."""
+    node = {"boundingVolume": {"box": box}, "geometricError": 0.0, "content": {"uri": level_uri(index, 0)}}
+    for info in sorted(levels, key=lambda lv: lv["level"]):
+        node = {"boundingVolume": {"box": box}, "geometricError": float(info["error_m"]), "refine": "REPLACE",
+                "content": {"uri": level_uri(index, info["level"])}, "children": [node]}
+    return node
+
+
 def tileset_json(plan: dict, bounds: list[tuple[np.ndarray, np.ndarray]], generator: str, crs=None,
-                 background=None) -> dict:
-    """tileset.json for the plan's tiles with world ``bounds`` [(lo (3,), hi (3,))] of each tile's mesh; ``crs``:
+                 background=None, levels: list[list[dict]] | None = None) -> dict:
+    """tileset.json for the plan's tiles with world ``bounds`` [(lo (3,), hi (3,))] of each tile's meshes; ``crs``:
     a projected CRS (``tiles/crs.projected_crs``) to place it on the globe, or None for a local frame;
-    ``background``: (3,) the tiles' clear colour, recorded in ``asset.extras.neuras_background``."""
+    ``background``: (3,) the tiles' clear colour, recorded in ``asset.extras.neuras_background``; ``levels``: per
+    tile its coarse levels (``tile.json``'s ``levels``), or None for full detail only."""
     frame = tileset_frame(plan["up"])
     scene = np.asarray(plan["scene_box"], np.float64)
     lo = np.min([b[0] for b in bounds], axis=0)
     hi = np.max([b[1] for b in bounds], axis=0)
     diagonal = float(np.linalg.norm(scene[1] - scene[0]))
-    children = [{"boundingVolume": {"box": oriented_box(b_lo, b_hi, frame)}, "geometricError": 0.0,
-                 "content": {"uri": f"tiles/{tile['index']}.glb"}}
-                for tile, (b_lo, b_hi) in zip(plan["tiles"], bounds)]
+    levels = levels or [[] for _ in plan["tiles"]]
+    children = [_chain(tile["index"], tile_levels, oriented_box(b_lo, b_hi, frame))
+                for tile, (b_lo, b_hi), tile_levels in zip(plan["tiles"], bounds, levels)]
     root = {"boundingVolume": {"box": oriented_box(lo, hi, frame)}, "geometricError": diagonal, "refine": "ADD",
             "children": children}
     asset = {"version": "1.1", "generator": generator,
@@ -117,15 +136,26 @@ def merge_tiles(city, out, *, max_texture_size: int | None = None, crs: str | No
     up = np.asarray(plan["up"], np.float64)
     files: dict[str, bytes] = {}
     bounds, background = [], None
+    from .levels import level_folder
+
+    chains = []
     for tile in plan["tiles"]:
-        folder = city / "tiles" / str(tile["index"]) / "tile"
-        bundle = load_bundle(folder)
-        background = bundle.background_color if background is None else background
-        world = bundle.mesh.vertices.astype(np.float64) + bundle.origin
-        bounds.append((world.min(0), world.max(0)))
-        files[f"tiles/{tile['index']}.glb"] = glb_bytes(bundle, read_bundle_file_bytes(folder), limit, up)
+        k = tile["index"]
+        record = json.loads((city / "tiles" / str(k) / "tile.json").read_text("utf-8"))
+        coarse = record.get("levels") or []
+        chains.append(coarse)
+        lows, highs = [], []
+        for level in [0, *(lv["level"] for lv in coarse)]:
+            folder = level_folder(city, level, k) / "tile"
+            bundle = load_bundle(folder)
+            background = bundle.background_color if background is None else background
+            world = bundle.mesh.vertices.astype(np.float64) + bundle.origin
+            lows.append(world.min(0))
+            highs.append(world.max(0))
+            files[level_uri(k, level)] = glb_bytes(bundle, read_bundle_file_bytes(folder), limit, up)
+        bounds.append((np.min(lows, axis=0), np.max(highs, axis=0)))
     generator = f"neuras-distill {__version__}"
-    tileset = tileset_json(plan, bounds, generator, crs, background)
+    tileset = tileset_json(plan, bounds, generator, crs, background, chains)
     files["tileset.json"] = (json.dumps(tileset, indent=1) + "\n").encode("utf-8")
     from ..render.cameras import Cameras
 
