@@ -209,8 +209,9 @@ def _export_3dtiles(args) -> int:
         raise BadInputError("--format 3dtiles needs --three THREE_DIR and --tiles-renderer TILES_DIR: the packages "
                             "to copy (node_modules/three and node_modules/3d-tiles-renderer of a local `npm install "
                             "three 3d-tiles-renderer`)")
-    out, versions = export_3dtiles(args.bundle, args.out, args.three, args.tiles_renderer)
-    print(f"wrote {out} with three.js {versions['three']} and 3DTilesRendererJS {versions['3d-tiles-renderer']} "
+    out, versions = export_3dtiles(args.bundle, args.out, args.three, args.tiles_renderer, args.cesium)
+    cesium = f" and CesiumJS {versions['cesium']} (cesium.html)" if "cesium" in versions else ""
+    print(f"wrote {out} with three.js {versions['three']}, 3DTilesRendererJS {versions['3d-tiles-renderer']}{cesium} "
           f"(play it with `neuras-distill serve {out}`)")
     return 0
 

@@ -234,6 +234,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tiles-renderer", default=None, metavar="TILES_DIR",
                    help="3dtiles only: the 3DTilesRendererJS package to copy into the page "
                         "(node_modules/3d-tiles-renderer of a local `npm install 3d-tiles-renderer`; tested with 0.5.3)")
+    p.add_argument("--cesium", default=None, metavar="CESIUM_DIR",
+                   help="3dtiles: also a CesiumJS page (cesium.html) of the tileset on the globe, with CesiumJS "
+                        "copied from CESIUM_DIR (node_modules/cesium; tested with 1.145.0)")
     p.add_argument("--out", required=True, help="output file or folder (gltf: a .glb path; web, threejs: a folder); an "
                                                 "existing one is replaced only when neuras-distill wrote it")
     p.add_argument("--up", default="auto", metavar="AXIS",

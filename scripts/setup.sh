@@ -67,6 +67,10 @@ if command -v node >/dev/null 2>&1 && command -v npm >/dev/null 2>&1; then
   [ -f .tools/node_modules/3d-tiles-renderer/build/index.three.js ] \
     || npm install --silent --no-fund --no-audit --prefix .tools 3d-tiles-renderer@0.5.3 >/dev/null \
     || echo "setup: npm install 3d-tiles-renderer failed; the tiles page test will be skipped"
+  # CesiumJS (tests/test_tiles.py: the tileset on the globe), its own prefix like model-viewer's
+  [ -f .tools/cesium/node_modules/cesium/Build/Cesium/Cesium.js ] \
+    || npm install --silent --no-fund --no-audit --prefix .tools/cesium cesium@1.145.0 >/dev/null \
+    || echo "setup: npm install cesium failed; the CesiumJS test will be skipped"
   # Google's <model-viewer> (tests/test_gltf_up.py): its own prefix, since it pins an older three.js
   [ -f .tools/model-viewer/node_modules/@google/model-viewer/dist/model-viewer.min.js ] \
     || npm install --silent --no-fund --no-audit --prefix .tools/model-viewer @google/model-viewer@4.4.0 >/dev/null \

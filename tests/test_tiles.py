@@ -438,3 +438,60 @@ def test_the_page_picks_levels_by_screen_error_as_the_tiles_renderer_draws_them(
     for name in ("near", "far"):
         assert seen[name]["same_db"] >= 38.0 and seen[name]["full_db"] >= 35.0, seen
     assert seen["far"]["bytes"] < whole
+
+
+CESIUM = ROOT / ".tools" / "cesium" / "node_modules" / "cesium"
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_cesium_shows_the_tileset_at_its_place_on_the_globe(two_tiles, browser, http_root, tmp_path):
+    """A tileset merged with --crs EPSG:32633, in CesiumJS in headless Chromium: every tile loads and draws, the root
+    transform's ECEF position is pyproj's to 1 cm, and the console holds no error or warning."""
+    import base64
+    import io
+    import time
+
+    from PIL import Image
+
+    pytest.importorskip("pyproj")
+    from neuras_distill.tiles.crs import ecef_points, projected_crs
+
+    if not (CESIUM / "Build" / "Cesium" / "Cesium.js").is_file() or not (TILES_RENDERER / "build").is_dir():
+        pytest.skip("npm's cesium and 3d-tiles-renderer are not in .tools/ (scripts/setup.sh installs them)")
+    city, _ = two_tiles
+    placed = tmp_path / "placed"
+    assert main(["tiles", "merge", str(city), "--out", str(placed), "--crs", "EPSG:32633"]) == 0
+    root, base = http_root
+    assert main(["export", str(placed), "--format", "3dtiles", "--three", str(THREE), "--tiles-renderer",
+                 str(TILES_RENDERER), "--cesium", str(CESIUM), "--out", str(root / "globe")]) == 0
+    browser.get_log("browser")
+    browser.get(f"{base}/globe/cesium.html")
+    deadline = time.monotonic() + 240
+    while True:
+        ready, error = browser.execute_script("return [window.neurasReady === true, window.neurasError || null];")
+        assert error is None, error
+        if ready:
+            break
+        assert time.monotonic() < deadline, "CesiumJS did not load the tileset in 240 s"
+        time.sleep(0.5)
+    stats = browser.execute_script("return window.neurasStats;")
+    shot = browser.execute_script("return window.neurasCanvas.toDataURL('image/png');")
+    img = np.asarray(Image.open(io.BytesIO(base64.b64decode(shot.split(",", 1)[1]))).convert("RGB"))
+    Image.fromarray(img).save(tmp_path / "cesium.png")
+    plan = json.loads((city / "plan.json").read_text())
+    centre = np.asarray(plan["scene_box"], np.float64).mean(0)
+    doc = json.loads((placed / "tileset.json").read_text())
+    transform = np.asarray(doc["root"]["transform"]).reshape(4, 4).T
+    frame = np.asarray(doc["asset"]["extras"]["neuras_world_to_tileset"])
+    expected = ecef_points(projected_crs("EPSG:32633"), centre[None])[0]
+    # the root transform maps the scene's centre (tileset frame) onto pyproj's ECEF of it; Cesium holds that transform
+    assert np.linalg.norm(transform[:3, :3] @ (frame @ centre) + transform[:3, 3] - expected) < 0.01
+    assert np.allclose(stats["root_ecef"], transform[:3, 3], atol=0.01)
+    assert np.linalg.norm(np.asarray(stats["sphere_centre"]) - expected) < 2.0      # the tiles' bounds around it
+    colours = img.reshape(-1, 3)
+    globe = np.array([0x2F, 0x4F, 0x6F])
+    assert (np.abs(colours.astype(int) - globe).sum(1) > 60).mean() > 0.01, "no tile drawn over the globe"
+    logged = [e for e in browser.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]
+    assert logged == [], logged
+    print("cesium:", stats, "picture:", tmp_path / "cesium.png")
