@@ -12,6 +12,14 @@ class BadInputError(ValueError):
     """A problem with what the user gave us. The message says what is wrong and what to do about it."""
 
 
+class AtlasTooSmallError(BadInputError):
+    """A fixed atlas side below what the mesh's UV charts need; ``need``: the smallest side (texels) that fits them."""
+
+    def __init__(self, message: str, need: int):
+        super().__init__(message)
+        self.need = int(need)
+
+
 def require(condition: bool, message: str) -> None:
     """Raise :class:`BadInputError` with ``message`` unless ``condition`` holds."""
     if not condition:

@@ -54,8 +54,8 @@ def page_of(folder: Path) -> tuple[Path, str]:
     export or a run folder (module docstring); BadInputError saying what to pass otherwise."""
     folder = Path(folder)
     if not folder.exists():
-        raise BadInputError(f"{folder} does not exist: pass the folder `neuras-distill export --format web|threejs "
-                            "--out` wrote, or a run folder")
+        raise BadInputError(f"{folder} does not exist: pass the folder `neuras-distill export --format "
+                            "web|threejs|3dtiles --out` wrote, or a run folder")
     for marker in (WEB_MARKER, THREEJS_MARKER, TILES_PAGE_MARKER):
         if (folder / marker).is_file() and (folder / "index.html").is_file():
             return folder.resolve(), "index.html"

@@ -2,8 +2,9 @@
 
 Level 0 is the tile as ``run_tile`` distils it (``CITY/tiles/K/``). Level l (1 .. N-1) is the same tile distilled
 again into ``CITY/levels/l/K/`` from the same teacher (level 0's stored stages are reused), with 1/4^l of its
-faces, 1/2^l of its atlas side (at least :data:`MIN_SIDE`) and 1/4^l of its training steps or seconds, then cut
-to the tile's box as level 0 is (``tile/``).
+faces, 1/2^l of its atlas side (at least :data:`MIN_SIDE`, and at least what its UV charts need: a fragmented
+mesh keeps many charts at a quarter of the faces) and 1/4^l of its training steps or seconds, then cut to the
+tile's box as level 0 is (``tile/``).
 
 Error: a level's ``geometricError`` (metres: what 3D Tiles projects to pixels to choose a level) is measured
 against level 0, never guessed. It is the larger of two figures:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import BadInputError, require
+from ..errors import AtlasTooSmallError, BadInputError, require
 from ..export.folder_output import write_file
 from .plan import plan_bytes, read_plan
 
@@ -125,10 +125,16 @@ def _coarse_levels(city: Path, plan: dict, tile: dict, field, fingerprint, camer
     out, floor = [], 0.0
     for level in range(1, int(plan.get("levels", 1))):
         overrides = level_overrides(cfg, level, side0)
-        level_cfg = cfg.updated(overrides, f"level {level}")
         run = level_folder(city, level, k)
-        _distill_tile(field, fingerprint, plan, tile, cameras, level_cfg, run, log=log, progress=progress,
-                      device=device, nproc=nproc, reuse_from=[fine_run / "work"], source_extra={"level": level})
+        try:
+            _distill_tile(field, fingerprint, plan, tile, cameras, cfg.updated(overrides, f"level {level}"), run,
+                          log=log, progress=progress, device=device, nproc=nproc, reuse_from=[fine_run / "work"],
+                          source_extra={"level": level})
+        except AtlasTooSmallError as small:   # a fragmented mesh's charts need more than half the side: give them it
+            overrides["texture"]["resolution"] = min(side0, -(-small.need // 16) * 16)
+            _distill_tile(field, fingerprint, plan, tile, cameras, cfg.updated(overrides, f"level {level}"), run,
+                          log=log, progress=progress, device=device, nproc=nproc, reuse_from=[fine_run / "work"],
+                          source_extra={"level": level})
         coarse = load_bundle(run / "tile")
         error = level_error(fine, coarse, overrides["texture"]["resolution"])
         floor = max(floor, error["error_m"])

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...errors import require
+from ...errors import AtlasTooSmallError
 from ...geometry.depth_fusion import FAINT_MIN_WIDTH_PX
 from ...geometry.extract import (
     FAINT_SURFACE_OPACITY,
@@ -74,9 +74,10 @@ def geometry_stage(ctx: RunContext, views: CameraSplit, teacher: TeacherResult,
     mesh, density = result.mesh, result.density if auto_side else density
     tex_res, charts = int(mesh.stats["uv_resolution"]), int(mesh.stats.get("uv_charts") or 0)
     need = int(np.ceil(np.sqrt(16 * charts)))            # every chart at least 4x4 texels with its padding
-    require(tex_res >= need, f"a {tex_res}x{tex_res} texture is too small for this mesh: its {charts} UV charts "
-                             f"need at least {need}x{need} texels; raise --texture-resolution (or use 0 for "
-                             f"automatic) or lower --face-budget")
+    if tex_res < need:
+        raise AtlasTooSmallError(f"a {tex_res}x{tex_res} texture is too small for this mesh: its {charts} UV charts "
+                                 f"need at least {need}x{need} texels; raise --texture-resolution (or use 0 for "
+                                 "automatic) or lower --face-budget", need)
     choices.atlas_pages(mesh.stats, ctx.decisions)
     if auto_side:
         choices.atlas_side(tex_res, density, ctx.cfg.texture.max_resolution, ctx.decisions)
